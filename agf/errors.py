@@ -1,0 +1,32 @@
+"""Exception types shared by the whole package.
+
+Every user-facing error derives from :class:`AgfError`; the CLI turns them into the JSON error
+contract of DESIGN.md instead of a traceback. They also derive from ``ValueError`` where the cause
+is a bad value, so callers that validate input can catch the standard type.
+"""
+
+from __future__ import annotations
+
+
+class AgfError(Exception):
+    """Base of every error the controller reports to a user."""
+
+
+class ConfigError(AgfError, ValueError):
+    """A configuration, scene or camera file is missing, malformed or holds an impossible value."""
+
+
+class InputError(AgfError, ValueError):
+    """A command-line argument or an input file (image, JSON) is unusable."""
+
+
+class MeasurementError(AgfError):
+    """The vision could not produce a trustworthy measurement; the message says why."""
+
+
+class NotAvailableError(AgfError):
+    """A capability that has not been built yet, or hardware that is not present."""
+
+
+class DriveFault(AgfError):
+    """A drive reported a fault, went silent or was commanded outside its limits."""

@@ -1,0 +1,220 @@
+"""Rotations and rigid transforms with the conventions of DESIGN.md.
+
+Conventions
+-----------
+* Euler angles are intrinsic Z-Y'-X'': ``R = Rz(yaw) @ Ry(pitch) @ Rx(roll)``.
+* ``A_in_B`` is the pose of frame A expressed in frame B: it maps A coordinates to B coordinates,
+  ``p_B = A_in_B.apply(p_A)``.
+* Inside the package everything is SI (m, rad). The ``{x_mm, ..., yaw_deg}`` dictionaries of YAML
+  and JSON are converted only by :func:`transform_from_dict` and :meth:`Transform.to_dict`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+POSE_KEYS = ("x_mm", "y_mm", "z_mm", "roll_deg", "pitch_deg", "yaw_deg")
+
+
+def matrix_from_axis_angle(axis: int, angle: float) -> NDArray[np.float64]:
+    """Rotation matrix (3, 3) about a basis axis (0 = X, 1 = Y, 2 = Z) by ``angle`` rad."""
+    if axis not in (0, 1, 2):
+        raise ValueError(f"axis must be 0, 1 or 2, got {axis!r}")
+    c, s = np.cos(angle), np.sin(angle)
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]
+    R = np.eye(3)
+    R[i, i] = c
+    R[j, j] = c
+    R[i, j] = -s
+    R[j, i] = s
+    return R
+
+
+def matrix_from_euler(yaw: float, pitch: float, roll: float) -> NDArray[np.float64]:
+    """Rotation matrix (3, 3) ``Rz(yaw) @ Ry(pitch) @ Rx(roll)``; angles in rad."""
+    return matrix_from_axis_angle(2, yaw) @ matrix_from_axis_angle(1, pitch) @ matrix_from_axis_angle(0, roll)
+
+
+def euler_from_matrix(R: ArrayLike) -> tuple[float, float, float]:
+    """Inverse of :func:`matrix_from_euler`: ``(yaw, pitch, roll)`` in rad.
+
+    At gimbal lock (``|pitch| = pi/2``) roll is set to zero and yaw takes the whole rotation.
+    """
+    R = check_rotation(R)
+    pitch = float(np.arcsin(np.clip(-R[2, 0], -1.0, 1.0)))
+    if abs(R[2, 0]) < 1.0 - 1e-12:
+        yaw = float(np.arctan2(R[1, 0], R[0, 0]))
+        roll = float(np.arctan2(R[2, 1], R[2, 2]))
+    else:
+        yaw = float(np.arctan2(-R[0, 1], R[1, 1]))
+        roll = 0.0
+    return yaw, pitch, roll
+
+
+def check_rotation(R: ArrayLike, tolerance: float = 1e-6) -> NDArray[np.float64]:
+    """Return ``R`` as a float (3, 3) array after checking it is a proper rotation.
+
+    Raises
+    ------
+    ValueError
+        If the shape is not (3, 3), ``R`` is not orthonormal or its determinant is not +1.
+    """
+    R = np.asarray(R, dtype=float)
+    if R.shape != (3, 3):
+        raise ValueError(f"rotation matrix must have shape (3, 3), got {R.shape}")
+    if not np.all(np.isfinite(R)):
+        raise ValueError("rotation matrix holds NaN or infinity")
+    if np.abs(R @ R.T - np.eye(3)).max() > tolerance:
+        raise ValueError("rotation matrix is not orthonormal")
+    if np.linalg.det(R) < 0:
+        raise ValueError("rotation matrix is a reflection (determinant -1)")
+    return R
+
+
+def rotation_between(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:
+    """Smallest rotation (3, 3) that turns unit direction ``a`` onto unit direction ``b``."""
+    a = np.asarray(a, float) / np.linalg.norm(a)
+    b = np.asarray(b, float) / np.linalg.norm(b)
+    v = np.cross(a, b)
+    c = float(np.dot(a, b))
+    if c < -1.0 + 1e-12:
+        # Opposite vectors: turn by pi about any axis orthogonal to a.
+        helper = np.eye(3)[np.argmin(np.abs(a))]
+        axis = np.cross(a, helper)
+        axis /= np.linalg.norm(axis)
+        return 2.0 * np.outer(axis, axis) - np.eye(3)
+    vx = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    return np.eye(3) + vx + vx @ vx / (1.0 + c)
+
+
+@dataclass(frozen=True)
+class Transform:
+    """Rigid transform ``A_in_B``: ``p_B = rotation @ p_A + translation``.
+
+    Attributes
+    ----------
+    rotation : ndarray, shape (3, 3)
+    translation : ndarray, shape (3,), metres
+    """
+
+    rotation: NDArray[np.float64] = field(default_factory=lambda: np.eye(3))
+    translation: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
+
+    def __post_init__(self) -> None:
+        R = check_rotation(self.rotation)
+        t = np.asarray(self.translation, dtype=float)
+        if t.shape != (3,) or not np.all(np.isfinite(t)):
+            raise ValueError(f"translation must be 3 finite numbers, got {t!r}")
+        R.setflags(write=False)
+        t = t.copy()
+        t.setflags(write=False)
+        object.__setattr__(self, "rotation", R)
+        object.__setattr__(self, "translation", t)
+
+    @classmethod
+    def from_euler(
+        cls, x: float = 0.0, y: float = 0.0, z: float = 0.0, roll: float = 0.0, pitch: float = 0.0, yaw: float = 0.0
+    ) -> Transform:
+        """Transform from a translation (m) and Z-Y'-X'' Euler angles (rad)."""
+        return cls(matrix_from_euler(yaw, pitch, roll), np.array([x, y, z], dtype=float))
+
+    @classmethod
+    def from_matrix(cls, T: ArrayLike) -> Transform:
+        """Transform from a homogeneous (4, 4) matrix."""
+        T = np.asarray(T, dtype=float)
+        if T.shape != (4, 4):
+            raise ValueError(f"homogeneous matrix must have shape (4, 4), got {T.shape}")
+        if not np.allclose(T[3], [0, 0, 0, 1]):
+            raise ValueError("last row of a homogeneous matrix must be [0, 0, 0, 1]")
+        return cls(T[:3, :3], T[:3, 3])
+
+    @property
+    def matrix(self) -> NDArray[np.float64]:
+        """Homogeneous matrix (4, 4)."""
+        T = np.eye(4)
+        T[:3, :3] = self.rotation
+        T[:3, 3] = self.translation
+        return T
+
+    @property
+    def euler(self) -> tuple[float, float, float]:
+        """``(yaw, pitch, roll)`` in rad."""
+        return euler_from_matrix(self.rotation)
+
+    def inverse(self) -> Transform:
+        """``B_in_A`` from ``A_in_B``."""
+        Rt = self.rotation.T
+        return Transform(Rt, -Rt @ self.translation)
+
+    def __matmul__(self, other: Transform) -> Transform:
+        """Compose: ``B_in_C @ A_in_B = A_in_C``."""
+        if not isinstance(other, Transform):
+            return NotImplemented
+        return Transform(self.rotation @ other.rotation, self.rotation @ other.translation + self.translation)
+
+    def apply(self, points: ArrayLike) -> NDArray[np.float64]:
+        """Map points (N, 3) or (3,) from frame A to frame B."""
+        p = np.asarray(points, dtype=float)
+        if p.shape[-1] != 3:
+            raise ValueError(f"points must have a last dimension of 3, got shape {p.shape}")
+        return p @ self.rotation.T + self.translation
+
+    def apply_direction(self, directions: ArrayLike) -> NDArray[np.float64]:
+        """Rotate directions (N, 3) or (3,) from frame A to frame B (no translation)."""
+        d = np.asarray(directions, dtype=float)
+        if d.shape[-1] != 3:
+            raise ValueError(f"directions must have a last dimension of 3, got shape {d.shape}")
+        return d @ self.rotation.T
+
+    def to_dict(self) -> dict[str, float]:
+        """The ``{x_mm, y_mm, z_mm, roll_deg, pitch_deg, yaw_deg}`` form of DESIGN.md."""
+        yaw, pitch, roll = self.euler
+        x, y, z = (float(v) * 1000.0 for v in self.translation)
+        return {
+            "x_mm": x,
+            "y_mm": y,
+            "z_mm": z,
+            "roll_deg": float(np.degrees(roll)),
+            "pitch_deg": float(np.degrees(pitch)),
+            "yaw_deg": float(np.degrees(yaw)),
+        }
+
+
+def transform_from_dict(data: Mapping[str, object], *, where: str = "pose") -> Transform:
+    """Parse the ``{x_mm, ..., yaw_deg}`` form; missing keys are zero, unknown keys an error.
+
+    Parameters
+    ----------
+    data : mapping
+        Keys from ``POSE_KEYS``; values in mm and degrees.
+    where : str
+        Where the mapping came from (file and key path), for error messages.
+
+    Raises
+    ------
+    ValueError
+        If ``data`` is not a mapping, has unknown keys or non-finite / non-numeric values.
+    """
+    if not isinstance(data, Mapping):
+        raise ValueError(f"{where}: expected a mapping with keys {', '.join(POSE_KEYS)}, got {type(data).__name__}")
+    unknown = sorted(set(data) - set(POSE_KEYS))
+    if unknown:
+        raise ValueError(f"{where}: unknown key(s) {unknown}; expected some of {', '.join(POSE_KEYS)}")
+    values = {}
+    for key in POSE_KEYS:
+        value = data.get(key, 0.0)
+        if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value):
+            raise ValueError(f"{where}.{key}: expected a finite number, got {value!r}")
+        values[key] = float(value)
+    return Transform.from_euler(
+        x=values["x_mm"] / 1000.0,
+        y=values["y_mm"] / 1000.0,
+        z=values["z_mm"] / 1000.0,
+        roll=np.radians(values["roll_deg"]),
+        pitch=np.radians(values["pitch_deg"]),
+        yaw=np.radians(values["yaw_deg"]),
+    )
