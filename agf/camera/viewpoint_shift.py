@@ -1,0 +1,90 @@
+"""The viewpoint shift of a fisheye lens (paper section IV.B).
+
+The entrance pupil of a wide-angle lens moves along the optical axis with the incidence angle: a ray
+at 80 deg enters about 10 mm further forward than one at 45 deg. The curve is zero at the reference
+angle (45 deg), where the reference viewpoint, the origin of the camera frame, sits.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+REFERENCE_ANGLE = math.radians(45.0)
+
+
+@dataclass(frozen=True, eq=False)
+class ViewpointShift:
+    """Forward offset of the entrance pupil (m) as a function of the incidence angle (rad).
+
+    Either a table (``angles`` rad, ``offsets`` m, interpolated by a cubic Hermite spline so the
+    derivative exists for the projection solver) or a polynomial in ``theta - reference`` (m per
+    rad^k, lowest order first).
+    """
+
+    angles: NDArray[np.float64] | None = None
+    offsets: NDArray[np.float64] | None = None
+    poly: NDArray[np.float64] | None = None
+    reference: float = REFERENCE_ANGLE
+
+    def __post_init__(self) -> None:
+        if (self.poly is None) == (self.angles is None):
+            raise ValueError("viewpoint shift: give either a table (angles and offsets) or a polynomial")
+        if self.poly is not None:
+            poly = np.asarray(self.poly, dtype=float).ravel()
+            if poly.size == 0 or not np.all(np.isfinite(poly)):
+                raise ValueError(f"viewpoint shift: polynomial must be finite numbers, got {self.poly}")
+            object.__setattr__(self, "poly", poly)
+            return
+        angles = np.asarray(self.angles, dtype=float).ravel()
+        offsets = np.asarray(self.offsets, dtype=float).ravel()
+        if angles.size < 2 or angles.size != offsets.size:
+            raise ValueError(
+                "viewpoint shift table: need at least 2 angles and as many offsets, "
+                f"got {angles.size} and {offsets.size}"
+            )
+        if not (np.all(np.isfinite(angles)) and np.all(np.isfinite(offsets))):
+            raise ValueError("viewpoint shift table: angles and offsets must be finite")
+        if np.any(np.diff(angles) <= 0):
+            raise ValueError("viewpoint shift table: angles must increase strictly")
+        object.__setattr__(self, "angles", angles)
+        object.__setattr__(self, "offsets", offsets)
+
+    def offset(self, theta: ArrayLike) -> NDArray[np.float64]:
+        """Pupil offset along the optical axis (m, forward positive) at incidence ``theta`` (rad)."""
+        return self._evaluate(np.asarray(theta, dtype=float))[0]
+
+    def derivative(self, theta: ArrayLike) -> NDArray[np.float64]:
+        """d offset / d theta (m/rad)."""
+        return self._evaluate(np.asarray(theta, dtype=float))[1]
+
+    def _evaluate(self, theta: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        if self.poly is not None:
+            t = theta - self.reference
+            value = np.polynomial.polynomial.polyval(t, self.poly)
+            slope = np.polynomial.polynomial.polyval(t, np.polynomial.polynomial.polyder(self.poly))
+            return value, slope
+        return _hermite(self.angles, self.offsets, theta)
+
+
+def _hermite(
+    x: NDArray[np.float64], y: NDArray[np.float64], t: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Cubic Hermite interpolation with finite-difference tangents, linear beyond the ends."""
+    slopes = np.gradient(y, x)
+    tc = np.clip(t, x[0], x[-1])
+    i = np.clip(np.searchsorted(x, tc) - 1, 0, x.size - 2)
+    h = x[i + 1] - x[i]
+    s = (tc - x[i]) / h
+    h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2
+    value = h00 * y[i] + h10 * h * slopes[i] + h01 * y[i + 1] + h11 * h * slopes[i + 1]
+    d00, d10, d01, d11 = 6 * s**2 - 6 * s, 3 * s**2 - 4 * s + 1, -6 * s**2 + 6 * s, 3 * s**2 - 2 * s
+    slope = (d00 * y[i] + d01 * y[i + 1]) / h + d10 * slopes[i] + d11 * slopes[i + 1]
+    below, above = t < x[0], t > x[-1]
+    value = np.where(below, y[0] + slopes[0] * (t - x[0]), value)
+    value = np.where(above, y[-1] + slopes[-1] * (t - x[-1]), value)
+    slope = np.where(below, slopes[0], np.where(above, slopes[-1], slope))
+    return value, slope
