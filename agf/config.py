@@ -160,7 +160,8 @@ def _convert(tp: Any, value: Any, where: str, base_dir: Path | None) -> Any:
             return tuple(_convert(args[0], v, f"{where}[{i}]", base_dir) for i, v in enumerate(value))
         if len(value) != len(args):
             raise ConfigError(f"{where}: expected a list of {len(args)} items, got {len(value)}")
-        return tuple(_convert(a, v, f"{where}[{i}]", base_dir) for i, (a, v) in enumerate(zip(args, value)))
+        pairs = enumerate(zip(args, value, strict=True))
+        return tuple(_convert(a, v, f"{where}[{i}]", base_dir) for i, (a, v) in pairs)
     if origin is dict:
         if not isinstance(value, Mapping):
             raise ConfigError(f"{where}: expected a mapping, got {_type_name(value)}")

@@ -59,7 +59,7 @@ class PalletType:
         edges = sorted((b.y - b.width / 2, b.y + b.width / 2) for b in self.blocks)
         if edges[0][0] < -self.width / 2 - 1e-9 or edges[-1][1] > self.width / 2 + 1e-9:
             raise ValueError("a block reaches beyond the pallet's width")
-        if any(a[1] > b[0] for a, b in zip(edges, edges[1:])):
+        if any(a[1] > b[0] for a, b in zip(edges, edges[1:], strict=False)):
             raise ValueError("blocks overlap")
 
     @property
@@ -80,7 +80,7 @@ class PalletType:
     def pockets(self) -> NDArray[np.float64]:
         """Pocket openings as (K, 2) arrays of ``[y_right, y_left]`` (m), right to left."""
         edges = sorted((b.y - b.width / 2, b.y + b.width / 2) for b in self.blocks)
-        return np.array([(a[1], b[0]) for a, b in zip(edges, edges[1:])])
+        return np.array([(a[1], b[0]) for a, b in zip(edges, edges[1:], strict=False)])
 
 
 def load_pallets(path: str | Path) -> dict[str, PalletType]:

@@ -59,6 +59,7 @@ class OCamCalib(CameraModel):
         norm = np.hypot(x, y)
         elevation = np.arctan2(z, norm)
         r, ok = self.radius_from_elevation(elevation)
+        r = np.where(ok, r, 0.0)
         safe = np.where(norm > 0, norm, 1.0)
         xs, ys = x / safe * r, y / safe * r
         row = xs * self.c + ys * self.d + self.center_row
@@ -79,14 +80,16 @@ class OCamCalib(CameraModel):
 
         ``invpol`` gives the first guess; Newton on ``atan2(pol(r), r) = elevation`` makes it exact.
         """
-        r = P.polyval(elevation, self.invpol)
         dpol = P.polyder(self.pol)
-        for _ in range(8):
-            z = P.polyval(r, self.pol)
-            g = np.arctan2(z, r) - elevation
-            dg = (P.polyval(r, dpol) * r - z) / (r**2 + z**2)
-            r = r - g / dg
-        ok = np.isfinite(r) & (r >= 0) & (np.abs(np.arctan2(P.polyval(r, self.pol), r) - elevation) < 1e-9)
+        # Rays far outside the field of view make Newton diverge; they are flagged invalid below.
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            r = P.polyval(elevation, self.invpol)
+            for _ in range(8):
+                z = P.polyval(r, self.pol)
+                g = np.arctan2(z, r) - elevation
+                dg = (P.polyval(r, dpol) * r - z) / (r**2 + z**2)
+                r = r - g / dg
+            ok = np.isfinite(r) & (r >= 0) & (np.abs(np.arctan2(P.polyval(r, self.pol), r) - elevation) < 1e-9)
         return r, ok
 
     def invpol_error_px(self, samples: int = 512) -> float:

@@ -25,7 +25,9 @@ def test_help_lists_every_subcommand(capsys):
 
 
 def test_console_script_runs_as_a_process():
-    result = subprocess.run([sys.executable, "-m", "agf.cli", "--help"], capture_output=True, text=True, check=False)
+    result = subprocess.run(
+        [sys.executable, "-m", "agf.cli", "--help"], capture_output=True, text=True, check=False
+    )
     assert result.returncode == 0
     assert "measure" in result.stdout
 

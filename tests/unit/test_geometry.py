@@ -29,7 +29,9 @@ def transforms(draw):
 def test_euler_order_is_z_then_y_then_x():
     # A pure pitch tips the X axis down (front lower) for positive angle about Y with Z up.
     yaw, pitch, roll = 0.3, 0.2, 0.1
-    expected = matrix_from_axis_angle(2, yaw) @ matrix_from_axis_angle(1, pitch) @ matrix_from_axis_angle(0, roll)
+    expected = (
+        matrix_from_axis_angle(2, yaw) @ matrix_from_axis_angle(1, pitch) @ matrix_from_axis_angle(0, roll)
+    )
     np.testing.assert_allclose(matrix_from_euler(yaw, pitch, roll), expected)
 
 
