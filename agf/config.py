@@ -166,13 +166,13 @@ def _convert(tp: Any, value: Any, where: str, base_dir: Path | None) -> Any:
         if not isinstance(value, Mapping):
             raise ConfigError(f"{where}: expected a mapping, got {_type_name(value)}")
         return {str(k): _convert(args[1], v, child(where, k), base_dir) for k, v in value.items()}
-    if dataclasses.is_dataclass(tp):
-        return section_from_mapping(tp, value, where, base_dir)
-    if tp is Transform:
+    if tp is Transform:  # a dataclass too, but written in the {x_mm, ..., yaw_deg} form
         try:
             return transform_from_dict(value, where=where)
         except ValueError as exc:
             raise ConfigError(str(exc)) from exc
+    if dataclasses.is_dataclass(tp):
+        return section_from_mapping(tp, value, where, base_dir)
     if tp is bool:
         if not isinstance(value, bool):
             raise ConfigError(f"{where}: expected true or false, got {value!r}")

@@ -1,0 +1,82 @@
+"""The model of a pallet's front face, built from the catalogue: where wood is and where pockets are.
+
+Everything is in frame P (DESIGN.md): the face is the plane x = 0, y left, z up, the origin at the
+centre of the face at pocket mid-height. Pockets are dark openings between bright wooden blocks and
+bands, which is what both the template match and the edge refinement look for.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from agf.pallets import PalletType
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class FaceModel:
+    """Front-face geometry (m): extent and pocket rectangles ``(y_min, y_max, z_min, z_max)`` (K, 4)."""
+
+    width: float
+    z_top: float
+    z_bottom: float
+    pockets: Array
+    pockets_open_below: bool
+
+    def raster(self, pixel: float, margin: float = 0.0) -> tuple[NDArray[np.float32], Array, Array]:
+        """Face image at ``pixel`` m per pixel: 1 wood, 0 pocket; with pixel-centre y and z (m).
+
+        Columns run from left (+y) to right (-y) and rows from top (+z) down, as the face is seen
+        from the front. ``margin`` extends the raster beyond the face (filled with 0.5, unknown).
+        """
+        y = np.arange(self.width / 2 + margin - pixel / 2, -self.width / 2 - margin, -pixel)
+        z = np.arange(self.z_top + margin - pixel / 2, self.z_bottom - margin, -pixel)
+        yy, zz = np.meshgrid(y, z)
+        image = np.ones(yy.shape, np.float32)
+        for y0, y1, z0, z1 in self.pockets:
+            image[(yy > y0) & (yy < y1) & (zz > z0) & (zz < z1)] = 0.0
+        outside = (np.abs(yy) > self.width / 2) | (zz > self.z_top) | (zz < self.z_bottom)
+        image[outside] = 0.5
+        return image, y, z
+
+    def edge_points(self, spacing: float, inset: float = 0.012) -> tuple[Array, Array]:
+        """Points (N, 3) on the pocket boundaries and unit normals (N, 3) pointing from wood into the pocket.
+
+        Points stay ``inset`` m away from pocket corners, where two edges blur into each other.
+        """
+        points, normals = [], []
+        for y0, y1, z0, z1 in self.pockets:
+            along_y = _samples(y0 + inset, y1 - inset, spacing)
+            along_z = _samples(z0 + inset, z1 - inset, spacing)
+            edges = [
+                (np.c_[0 * along_y, along_y, 0 * along_y + z1], (0.0, 0.0, -1.0)),  # top: wood above
+                (np.c_[0 * along_z, 0 * along_z + y0, along_z], (0.0, 1.0, 0.0)),  # right: block at lower y
+                (np.c_[0 * along_z, 0 * along_z + y1, along_z], (0.0, -1.0, 0.0)),  # left
+            ]
+            if not self.pockets_open_below:
+                edges.append((np.c_[0 * along_y, along_y, 0 * along_y + z0], (0.0, 0.0, 1.0)))
+            for p, n in edges:
+                points.append(p)
+                normals.append(np.tile(n, (len(p), 1)))
+        return np.concatenate(points), np.concatenate(normals)
+
+    def corners(self) -> Array:
+        """The four corners (4, 3) of the face: top-left, top-right, bottom-right, bottom-left."""
+        w = self.width / 2
+        return np.array([[0, w, self.z_top], [0, -w, self.z_top], [0, -w, self.z_bottom], [0, w, self.z_bottom]])
+
+
+def face_model_from_pallet(pallet: PalletType) -> FaceModel:
+    """The front-face model of a catalogued pallet type."""
+    half = pallet.pocket_height / 2
+    pockets = np.array([[y0, y1, -half, half] for y0, y1 in pallet.pockets()])
+    return FaceModel(pallet.width, pallet.deck_top, pallet.deck_bottom, pockets, pallet.bottom <= 0)
+
+
+def _samples(start: float, stop: float, spacing: float) -> Array:
+    n = max(int(np.floor((stop - start) / spacing)) + 1, 2)
+    return np.linspace(start, stop, n)

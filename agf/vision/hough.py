@@ -1,0 +1,109 @@
+"""Hough transform on the viewing sphere for lines parallel to a panorama's axis (paper section III).
+
+A 3D line seen from the viewpoint images as a great circle; the great circles of lines parallel to
+the panorama axis are its meridians, i.e. panorama columns. A line a few degrees off that direction
+is a great circle crossing the equator at longitude ``phi`` with inclination ``tau`` to the
+meridian there. Each edge point votes, for every ``tau``, for the ``phi`` of the great circle through
+it; the peak is the line, refined by a least-squares plane fit through its inlier directions.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from agf.vision.panorama import Panorama
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class SphereLine:
+    """A great circle (the image of a 3D line through the viewpoint) and its support.
+
+    Attributes
+    ----------
+    normal : (3,) array
+        Unit normal of the great circle's plane, camera frame.
+    score : float
+        Hough score: the summed weights of its inlier edge points (panorama rows they cover).
+    inliers : (N,) bool array
+        Which of the edge points given lie on it.
+    """
+
+    normal: Array
+    score: float
+    inliers: NDArray[np.bool_]
+
+
+def circle_normal(panorama: Panorama, phi: float, tau: float) -> Array:
+    """Normal (3,) of the great circle crossing the equator at longitude ``phi`` with inclination ``tau``."""
+    e1, e2, axis = panorama.basis()
+    radial = math.cos(phi) * e1 + math.sin(phi) * e2
+    tangent = math.cos(tau) * axis + math.sin(tau) * (-math.sin(phi) * e1 + math.cos(phi) * e2)
+    normal = np.cross(radial, tangent)
+    return normal / np.linalg.norm(normal)
+
+
+def hough_line(
+    panorama: Panorama,
+    directions: Array,
+    weights: Array,
+    phi_range: tuple[float, float],
+    tau_max: float = math.radians(10.0),
+    tau_step: float = math.radians(0.1),
+    tolerance: float | None = None,
+) -> SphereLine | None:
+    """The dominant great circle through edge ``directions`` (N, 3) near the meridians in ``phi_range``.
+
+    ``tolerance`` (rad) is the inlier distance from the circle, default 1.5 panorama pixels.
+    """
+    if len(directions) < 3:
+        return None
+    tolerance = tolerance if tolerance is not None else 1.5 * panorama.pixel_size()
+    local = directions @ panorama.basis().T
+    lon = np.arctan2(local[:, 1], local[:, 0])
+    lat = np.arctan2(local[:, 2], np.hypot(local[:, 0], local[:, 1]))
+    taus = np.arange(-tau_max, tau_max + tau_step / 2, tau_step)
+    # The circle of inclination tau through (lon, lat) crosses the equator at lon - atan(tan(s) sin(tau)),
+    # s being the arc from the equator: sin(lat) = sin(s) cos(tau).
+    sin_lat = np.sin(lat)[None, :]
+    cos_tau = np.cos(taus)[:, None]
+    tan_s = sin_lat / np.sqrt(np.maximum(cos_tau**2 - sin_lat**2, 1e-12))
+    phis = lon[None, :] - np.arctan(tan_s * np.sin(taus)[:, None])
+    bin_width = panorama.pixel_size()
+    edges = np.arange(phi_range[0], phi_range[1] + bin_width, bin_width)
+    if edges.size < 2:
+        return None
+    accumulator = np.stack([np.histogram(row, bins=edges, weights=weights)[0] for row in phis])
+    accumulator = accumulator + np.roll(accumulator, 1, axis=1) + np.roll(accumulator, -1, axis=1)
+    t_index, p_index = np.unravel_index(np.argmax(accumulator), accumulator.shape)
+    normal = circle_normal(panorama, 0.5 * (edges[p_index] + edges[p_index + 1]), taus[t_index])
+    for _ in range(3):
+        inliers = np.abs(directions @ normal) < tolerance
+        if inliers.sum() < 3:
+            return None
+        normal = fit_plane_normal(directions[inliers], weights[inliers], normal)
+    inliers = np.abs(directions @ normal) < tolerance
+    return SphereLine(normal, float(np.sum(weights[inliers])), inliers)
+
+
+def fit_plane_normal(directions: Array, weights: Array, reference: Array) -> Array:
+    """Least-squares normal of the plane through the origin closest to weighted unit directions."""
+    scatter = (directions * weights[:, None]).T @ directions
+    _, vectors = np.linalg.eigh(scatter)
+    normal = vectors[:, 0]
+    return normal if normal @ reference >= 0 else -normal
+
+
+def common_direction(normal_a: Array, normal_b: Array, predicted: Array) -> Array:
+    """The direction shared by two parallel 3D lines: orthogonal to both circle normals, signed like ``predicted``."""
+    direction = np.cross(normal_a, normal_b)
+    norm = np.linalg.norm(direction)
+    if norm < 1e-9:
+        raise ValueError("the two lines lie on one great circle; their common direction is undefined")
+    direction /= norm
+    return direction if direction @ predicted >= 0 else -direction

@@ -1,0 +1,180 @@
+"""One pallet measurement from one fisheye frame: pose, pitch, hypothesis, uncertainty.
+
+The data flow of paper section III: pose at an assumed pitch -> the loaded and unloaded line
+hypotheses -> choose (both valid: unloaded, the paper's rule against background verticals) ->
+pose again at the measured pitch, until pose and pitch agree. ``agf measure`` is
+:func:`measure_command` over :func:`measure_pallet`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+from numpy.typing import NDArray
+
+from agf.camera import CameraModel, load_camera
+from agf.config import Config, ForkGeometry, SearchVolume, load_calibration
+from agf.errors import InputError, MeasurementError
+from agf.geometry import Transform, transform_from_dict
+from agf.measurement import PalletMeasurement, pose_json
+from agf.pallets import PalletType, load_pallets, pallet_type
+from agf.vision.face_model import face_model_from_pallet
+from agf.vision.pallet_pose import PoseEstimate, PoseSearchConfig, estimate_pallet_pose
+from agf.vision.pitch import PitchConfig, PitchEvidence, loaded_evidence, unloaded_evidence
+
+
+@dataclass(frozen=True)
+class MeasureConfig:
+    """Tuning of the whole measurement."""
+
+    pose: PoseSearchConfig = field(default_factory=PoseSearchConfig)
+    pitch: PitchConfig = field(default_factory=PitchConfig)
+    iterations: int = 4
+    pitch_tolerance: float = math.radians(0.01)
+
+
+@dataclass(frozen=True)
+class MeasureDetail:
+    """A measurement with what it was made from (for overlays and reports)."""
+
+    measurement: PalletMeasurement
+    pose: PoseEstimate
+    evidence: dict[str, PitchEvidence]
+
+
+def measure_pallet(
+    image: NDArray,
+    camera: CameraModel,
+    camera_in_fork: Transform,
+    pallet: PalletType,
+    volume: SearchVolume,
+    *,
+    forks: ForkGeometry | None = None,
+    prior: Transform | None = None,
+    config: MeasureConfig = MeasureConfig(),
+) -> MeasureDetail:
+    """Measure the pallet (pose, pitch, loaded or not) or raise :class:`MeasurementError` with the reason."""
+    start = time.perf_counter()
+    timing: dict[str, float] = {}
+    gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    face = face_model_from_pallet(pallet)
+    pitch = prior.euler[1] if prior is not None else 0.0
+    pose = estimate_pallet_pose(
+        gray, camera, camera_in_fork, face, volume, prior=prior, pitch=pitch, forks=forks, config=config.pose
+    )
+    timing["pose"] = pose.timing_ms.get("total", 0.0)
+    evidence: dict[str, PitchEvidence] = {}
+    for _ in range(config.iterations):
+        t = time.perf_counter()
+        evidence = {
+            "loaded": loaded_evidence(gray, camera, camera_in_fork, pallet, pose.pallet_in_fork, config.pitch),
+            "unloaded": unloaded_evidence(gray, camera, camera_in_fork, pallet, pose.pallet_in_fork, config.pitch),
+        }
+        timing["pitch"] = timing.get("pitch", 0.0) + (time.perf_counter() - t) * 1e3
+        chosen = _choose(evidence)
+        converged = abs(chosen.pitch - pitch) < config.pitch_tolerance
+        pitch = chosen.pitch
+        if converged:
+            break
+        narrow = PoseSearchConfig(**{**config.pose.__dict__, "prior_window": 0.04, "prior_yaw_window": math.radians(2)})
+        t = time.perf_counter()
+        pose = estimate_pallet_pose(
+            gray,
+            camera,
+            camera_in_fork,
+            face,
+            volume,
+            prior=pose.pallet_in_fork,
+            pitch=pitch,
+            forks=forks,
+            config=narrow,
+        )
+        timing["pose"] += (time.perf_counter() - t) * 1e3
+    else:
+        raise MeasurementError(f"pose and pitch did not agree after {config.iterations} iterations")
+    timing["total"] = (time.perf_counter() - start) * 1e3
+    measurement = PalletMeasurement(
+        pallet_in_camera=pose.pallet_in_camera,
+        pallet_in_fork=pose.pallet_in_fork,
+        loaded=chosen.hypothesis == "loaded",
+        scores={name: e.ratio for name, e in evidence.items()} | {"pose": pose.score, "margin": pose.margin},
+        timing_ms=timing,
+    )
+    return MeasureDetail(measurement, pose, evidence)
+
+
+def _choose(evidence: dict[str, PitchEvidence]) -> PitchEvidence:
+    if evidence["unloaded"].valid:
+        return evidence["unloaded"]
+    if evidence["loaded"].valid:
+        return evidence["loaded"]
+    raise MeasurementError(
+        "no pitch: neither the deck edges (unloaded, ratio "
+        f"{evidence['unloaded'].ratio:.2f}) nor the load edges (loaded, ratio {evidence['loaded'].ratio:.2f}) "
+        "were found along their predicted length"
+    )
+
+
+def measure_command(
+    config: Config,
+    image: Path,
+    *,
+    camera: str | None = None,
+    calibration: str | None = None,
+    pallet_type: str | None = None,
+    prior_json: str | None = None,
+    overlay: str | None = None,
+) -> dict[str, Any]:
+    """``agf measure``: DESIGN.md's JSON contract."""
+    frame = cv2.imread(str(image), cv2.IMREAD_GRAYSCALE)
+    if frame is None:
+        raise InputError(f"{image}: not an image OpenCV can read")
+    model = load_camera(camera or config.vision.camera)
+    camera_in_fork = load_calibration(calibration or config.vision.calibration)
+    pallet = _pallet(config, pallet_type)
+    prior = _prior(prior_json)
+    try:
+        detail = measure_pallet(
+            frame, model, camera_in_fork, pallet, config.vision.search, forks=config.forks, prior=prior
+        )
+    except MeasurementError as exc:
+        return {"ok": False, "error": str(exc)}
+    m = detail.measurement
+    result = {
+        "ok": True,
+        "loaded": m.loaded,
+        "pallet_in_fork": pose_json(m.pallet_in_fork),
+        "pallet_in_camera": pose_json(m.pallet_in_camera),
+        "scores": {"loaded": m.scores["loaded"], "unloaded": m.scores["unloaded"]},
+        "timing_ms": dict(m.timing_ms),
+    }
+    if overlay:
+        from agf.viz import measurement_overlay
+
+        measurement_overlay(frame, model, camera_in_fork, pallet, detail, Path(overlay))
+    return result
+
+
+def _pallet(config: Config, name: str | None) -> PalletType:
+    return pallet_type(load_pallets(config.vision.pallets), name or config.vision.pallet_type)
+
+
+def _prior(path: str | None) -> Transform | None:
+    if path is None:
+        return None
+    try:
+        data = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{path}: cannot read the prior JSON ({exc})") from exc
+    pose = data.get("pallet_in_fork", data) if isinstance(data, dict) else data
+    try:
+        return transform_from_dict(pose, where=f"{path}: pallet_in_fork")
+    except ValueError as exc:
+        raise InputError(str(exc)) from exc
+

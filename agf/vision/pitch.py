@@ -1,0 +1,209 @@
+"""Pitch inclination of the pallet from parallel 3D edges (paper section III).
+
+Two hypotheses, each looking for two long parallel edges in a panorama whose axis is the edges'
+predicted direction (from the pose and the calibration, so a pitched-down camera works too; with a
+level mount these are the paper's camera Z and camera X):
+
+* loaded: the load's left and right vertical edges, parallel to pallet Z;
+* unloaded: the left and right edges of the top deck, parallel to pallet X.
+
+Each edge is found by the spherical Hough transform in its predicted region; the pair's common
+direction gives the pallet's axis, hence its pitch in the fork frame. The hypothesis is valid when
+its Hough scores cover enough of the predicted edge length (the paper's ratio test).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from agf.camera.base import CameraModel
+from agf.geometry import Transform
+from agf.pallets import PalletType
+from agf.vision.hough import SphereLine, common_direction, hough_line
+from agf.vision.panorama import Panorama, render_panorama
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class PitchConfig:
+    """Tuning of the pitch measurement (SI units)."""
+
+    pixel: float = math.radians(0.08)  # panorama resolution, rad per pixel
+    band: float = math.radians(4.0)  # half-width of a predicted region around the predicted edge
+    tau_max: float = math.radians(9.0)  # largest inclination of an edge against the predicted direction
+    min_ratio: float = 0.5  # Hough score / predicted length for a valid hypothesis
+    load_search: float = 0.25  # m: how much narrower than the pallet a load may be, each side
+    load_height: float = 0.4  # m of load edge expected above the deck
+
+
+@dataclass(frozen=True)
+class PitchEvidence:
+    """What one hypothesis found.
+
+    Attributes
+    ----------
+    hypothesis : str
+        ``"loaded"`` or ``"unloaded"``.
+    ratio : float
+        The smaller of the two edges' Hough score over predicted length (0..1).
+    valid : bool
+        ``ratio`` reached the configured minimum and the two edges gave a direction.
+    pitch : float
+        Pallet pitch in the fork frame (rad); NaN when not valid.
+    direction : (3,) array
+        The edges' common direction, camera frame (NaN when not valid).
+    panorama : Panorama
+        The panorama the edges were searched in (for overlays).
+    regions : list of (4,) arrays
+        Predicted regions as panorama (col_min, col_max, row_min, row_max).
+    lines : list of SphereLine
+        The edges found.
+    """
+
+    hypothesis: str
+    ratio: float
+    valid: bool
+    pitch: float
+    direction: Array
+    panorama: Panorama
+    regions: list[Array]
+    lines: list[SphereLine]
+
+
+def unloaded_evidence(
+    gray: NDArray,
+    camera: CameraModel,
+    camera_in_fork: Transform,
+    pallet: PalletType,
+    pallet_in_fork: Transform,
+    config: PitchConfig = PitchConfig(),
+) -> PitchEvidence:
+    """The top deck's left and right edges, parallel to pallet X."""
+    x = np.linspace(0.03, pallet.length - 0.03, 24)
+    segments = [
+        np.c_[x, np.full_like(x, side * pallet.width / 2), np.full_like(x, pallet.deck_top)] for side in (-1, 1)
+    ]
+    return _evidence("unloaded", gray, camera, camera_in_fork, pallet_in_fork, segments, 0, config)
+
+
+def loaded_evidence(
+    gray: NDArray,
+    camera: CameraModel,
+    camera_in_fork: Transform,
+    pallet: PalletType,
+    pallet_in_fork: Transform,
+    config: PitchConfig = PitchConfig(),
+) -> PitchEvidence:
+    """The load's left and right vertical edges, parallel to pallet Z, within the pallet's width."""
+    z = np.linspace(pallet.deck_top + 0.02, pallet.deck_top + config.load_height, 24)
+    inset = config.load_search / 2
+    segments = [np.c_[np.zeros_like(z), np.full_like(z, side * (pallet.width / 2 - inset)), z] for side in (-1, 1)]
+    band = math.atan2(inset + 0.03, float(np.linalg.norm(pallet_in_fork.translation - camera_in_fork.translation)))
+    return _evidence(
+        "loaded",
+        gray,
+        camera,
+        camera_in_fork,
+        pallet_in_fork,
+        segments,
+        2,
+        PitchConfig(**{**config.__dict__, "band": max(config.band, band)}),
+    )
+
+
+def _evidence(
+    hypothesis: str,
+    gray: NDArray,
+    camera: CameraModel,
+    camera_in_fork: Transform,
+    pallet_in_fork: Transform,
+    segments_p: list[Array],
+    axis_index: int,
+    config: PitchConfig,
+) -> PitchEvidence:
+    pallet_in_camera = camera_in_fork.inverse() @ pallet_in_fork
+    predicted = pallet_in_camera.rotation[:, axis_index]
+    segments = [pallet_in_camera.apply(s) for s in segments_p]
+    panorama = _panorama_over(predicted, segments, config)
+    image, valid = render_panorama(gray, camera, panorama)
+    directions, weights, columns, rows = _edge_points(image.astype(np.float32), valid, panorama)
+    lines, regions, ratios = [], [], []
+    for segment in segments:
+        pixels = panorama.pixels_from_directions(_unit(segment))
+        band_px = config.band / panorama.pixel_size()
+        region = np.array(
+            [pixels[:, 0].min() - band_px, pixels[:, 0].max() + band_px, pixels[:, 1].min(), pixels[:, 1].max()]
+        )
+        regions.append(region)
+        inside = (columns >= region[0]) & (columns <= region[1]) & (rows >= region[2]) & (rows <= region[3])
+        lon = (
+            panorama.angles_from_pixels(region[None, [0, 2]])[0][0],
+            panorama.angles_from_pixels(region[None, [1, 2]])[0][0],
+        )
+        line = hough_line(panorama, directions[inside], weights[inside], lon, tau_max=config.tau_max)
+        length = max(region[3] - region[2], 1.0)
+        ratios.append(0.0 if line is None else min(line.score / length, 1.0))
+        if line is not None:
+            lines.append(line)
+    ratio = float(min(ratios))
+    nan = np.full(3, np.nan)
+    if len(lines) < 2 or ratio < config.min_ratio:
+        return PitchEvidence(hypothesis, ratio, False, math.nan, nan, panorama, regions, lines)
+    try:
+        direction = common_direction(lines[0].normal, lines[1].normal, predicted)
+    except ValueError:
+        return PitchEvidence(hypothesis, ratio, False, math.nan, nan, panorama, regions, lines)
+    pitch = _pitch_from_direction(camera_in_fork.apply_direction(direction), pallet_in_fork, hypothesis)
+    return PitchEvidence(hypothesis, ratio, True, pitch, direction, panorama, regions, lines)
+
+
+def _pitch_from_direction(direction_f: Array, pallet_in_fork: Transform, hypothesis: str) -> float:
+    yaw = pallet_in_fork.euler[0]
+    forward = direction_f[0] * math.cos(yaw) + direction_f[1] * math.sin(yaw)
+    if hypothesis == "unloaded":  # the direction is pallet X: positive pitch tips it down
+        return math.atan2(-direction_f[2], forward)
+    return math.atan2(forward, direction_f[2])  # pallet Z, turned by 90 deg
+
+
+def _panorama_over(axis: Array, segments: list[Array], config: PitchConfig) -> Panorama:
+    """A panorama around ``axis`` just large enough for the segments and their bands."""
+    probe = Panorama.around(axis, 3600, 1800)
+    pixels = probe.pixels_from_directions(_unit(np.concatenate(segments)))
+    lon, lat = probe.angles_from_pixels(pixels)
+    margin = config.band + math.radians(1.0)
+    lon_range = (float(lon.min() - margin), float(lon.max() + margin))
+    lat_range = (
+        float(max(lat.min() - math.radians(1.0), -math.pi / 2)),
+        float(min(lat.max() + math.radians(1.0), math.pi / 2)),
+    )
+    width = int(math.ceil((lon_range[1] - lon_range[0]) / config.pixel))
+    height = int(math.ceil((lat_range[1] - lat_range[0]) / config.pixel))
+    return Panorama.around(axis, width, height, reference=probe.reference, lon_range=lon_range, lat_range=lat_range)
+
+
+def _edge_points(image: NDArray[np.float32], valid: NDArray[np.bool_], panorama: Panorama):
+    """Sub-pixel maxima of the horizontal gradient along each row, above an adaptive threshold."""
+    smooth = cv2.GaussianBlur(image, (0, 0), 0.8)
+    gx = np.abs(cv2.Sobel(smooth, cv2.CV_32F, 1, 0, ksize=3))
+    gx[~cv2.erode(valid.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)] = 0.0
+    left, right = np.roll(gx, 1, axis=1), np.roll(gx, -1, axis=1)
+    noise = 1.4826 * np.median(np.abs(gx[valid] - np.median(gx[valid]))) if valid.any() else 0.0
+    threshold = max(6.0 * noise, 0.2 * float(np.percentile(gx, 99)), 1e-3)
+    peak = (gx > left) & (gx >= right) & (gx > threshold)
+    peak[:, [0, -1]] = False
+    rows, cols = np.nonzero(peak)
+    l, c, r = left[rows, cols], gx[rows, cols], right[rows, cols]
+    offset = 0.5 * (l - r) / np.where(l - 2 * c + r < 0, l - 2 * c + r, -1.0)
+    columns = cols + offset
+    directions = panorama.directions_from_pixels(np.stack([columns, rows.astype(float)], axis=1))
+    return directions, np.ones(len(rows)), columns, rows.astype(float)
+
+
+def _unit(points: Array) -> Array:
+    return points / np.linalg.norm(points, axis=1, keepdims=True)

@@ -1,0 +1,412 @@
+"""The simulated camera: fisheye frames of a scene file, with exact ground truth (``agf render``).
+
+Geometry comes from the scene file and the pallet catalogue (frame P, DESIGN.md); every pixel's
+four stratified sub-samples are rays through the camera model, viewpoint shift included, cast
+against boxes and planes (:mod:`drivers.sim.raycast`). Shading: diffuse light from two lamps and an
+ambient term, darkened inside pallet pockets (ambient occlusion: pockets are dark holes),
+procedural wood grain, cardboard with tape seams, concrete, vignetting; then blur, sensor noise and
+JPEG. Everything random comes from the scene's seed, so a scene renders bit-identically.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from agf.camera import CameraModel, load_camera
+from agf.config import ForkGeometry
+from agf.geometry import Transform
+from agf.pallets import PalletType, load_pallets, pallet_type
+from agf.paths import repo_path
+from agf.scene import Scene, load_scene
+from drivers.sim.raycast import Box, Plane, cast, screen_rectangles
+
+Array = NDArray[np.float64]
+CATALOGUE = repo_path("configs/pallets.yaml")
+BAND_ROWS = 48
+SKY = 0.62  # albedo-like brightness of rays that hit nothing (a bright hall)
+
+# material -> (albedo, BGR tint)
+MATERIALS = {
+    "wood": (0.66, (0.78, 0.93, 1.0)),
+    "carton": (0.52, (0.62, 0.82, 1.0)),
+    "tape": (0.30, (0.55, 0.75, 0.9)),
+    "concrete": (0.42, (1.0, 1.0, 1.0)),
+    "truck-bed": (0.22, (0.9, 0.95, 1.0)),
+    "steel": (0.16, (1.0, 1.0, 1.0)),
+    "wall": (0.62, (0.95, 0.97, 1.0)),
+    "upright": (0.30, (1.0, 0.55, 0.35)),
+    "panel": (0.86, (1.0, 1.0, 1.0)),
+}
+
+
+@dataclass(frozen=True)
+class _Pallet:
+    """A pallet in the scene: its type and pose in the camera frame."""
+
+    kind: PalletType
+    in_camera: Transform
+
+
+def render(
+    scene: Scene, camera: CameraModel | None = None, forks: ForkGeometry | None = None, samples: int = 4
+) -> tuple[NDArray[np.uint8], dict[str, Any]]:
+    """A BGR fisheye frame of ``scene`` and its ground truth (see :func:`truth`)."""
+    camera = camera or load_camera(scene.camera)
+    forks = forks or ForkGeometry()
+    rng = np.random.default_rng(scene.seed)
+    objects, pallets = build_objects(scene, forks, rng)
+    offsets = _subpixel_offsets(samples, rng)
+    image = _trace(camera, objects, pallets, offsets, scene.environment.light)
+    image = _sensor(image, scene, rng)
+    return image, truth(scene, camera)
+
+
+def truth(scene: Scene, camera: CameraModel) -> dict[str, Any]:
+    """Ground truth: poses (mm, deg), loaded, and pocket-corner pixels of the target pallet."""
+    fork_in_camera = scene.camera_in_fork.inverse()
+    out: dict[str, Any] = {"loaded": scene.loaded, "camera_in_fork": scene.camera_in_fork.to_dict()}
+    if scene.pallet is None:
+        return out
+    kind = pallet_type(load_pallets(CATALOGUE), scene.pallet.type)
+    in_camera = fork_in_camera @ scene.pallet.in_fork
+    half = kind.pocket_height / 2
+    corners = np.array(
+        [[0.0, y, z] for y0, y1 in kind.pockets() for y, z in ((y1, half), (y0, half), (y0, -half), (y1, -half))]
+    )
+    pixels, valid = camera.project(in_camera.apply(corners))
+    out.update(
+        pallet_type=kind.name,
+        pallet_in_fork=scene.pallet.in_fork.to_dict(),
+        pallet_in_camera=in_camera.to_dict(),
+        pocket_corners_px=[
+            [list(map(float, p)) if v else None for p, v in zip(pixels[i : i + 4], valid[i : i + 4], strict=True)]
+            for i in range(0, len(pixels), 4)
+        ],
+    )
+    return out
+
+
+def render_command(scene_path: Path, out_png: Path, truth_json: Path) -> dict[str, Any]:
+    """``agf render SCENE --out PNG --truth JSON``."""
+    scene = load_scene(scene_path)
+    image, gt = render(scene)
+    out_png.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(out_png), image):
+        raise OSError(f"{out_png}: could not write the image")
+    truth_json.write_text(json.dumps(gt, indent=2) + "\n")
+    return {"ok": True, "image": str(out_png), "truth": str(truth_json), **gt}
+
+
+# -- scene geometry -------------------------------------------------------------------------------
+
+
+def build_objects(scene: Scene, forks: ForkGeometry, rng: np.random.Generator) -> tuple[list, list[_Pallet]]:
+    """Boxes and planes of the scene in the camera frame, and the pallets (for pocket shading)."""
+    fork_in_camera = scene.camera_in_fork.inverse()
+    objects: list[Box | Plane] = []
+    pallets: list[_Pallet] = []
+    objects += _forks(fork_in_camera, forks)
+    if scene.panel is not None:
+        width, depth = scene.panel.size
+        top = forks.thickness / 2 + scene.panel.thickness
+        objects.append(
+            _box(fork_in_camera, (-depth, 0.0), (-width / 2, width / 2), (forks.thickness / 2, top), "panel")
+        )
+        objects.append(_floor(fork_in_camera @ Transform.from_euler(z=-0.35), "concrete"))
+        return objects, pallets
+    kind = pallet_type(load_pallets(CATALOGUE), scene.pallet.type)
+    target = fork_in_camera @ scene.pallet.in_fork
+    spacing = kind.width + rng.uniform(0.15, 0.3)
+    sides = [0.0] + [s * spacing for s in (1, -1)][: scene.environment.neighbours]
+    for i, side in enumerate(sides):
+        in_camera = target @ Transform.from_euler(y=side)
+        pallets.append(_Pallet(kind, in_camera))
+        objects += _pallet_boxes(in_camera, kind, f"pallet{i}")
+        if scene.load is not None:
+            objects += _load(in_camera, kind, scene.load.size)
+    objects += _support(scene, kind, target, fork_in_camera, forks)
+    objects += _background(scene, kind, fork_in_camera, rng)
+    return objects, pallets
+
+
+def _box(frame: Transform, x: tuple, y: tuple, z: tuple, material: str, name: str = "") -> Box:
+    low, high = np.array([x[0], y[0], z[0]]), np.array([x[1], y[1], z[1]])
+    return Box(frame @ Transform(translation=(low + high) / 2), (high - low) / 2, material, name)
+
+
+def _floor(frame: Transform, material: str) -> Plane:
+    return Plane(frame, material, "floor")
+
+
+def _forks(fork_in_camera: Transform, forks: ForkGeometry) -> list[Box]:
+    half_t = forks.thickness / 2
+    tines = [
+        _box(
+            fork_in_camera,
+            (-forks.length, 0.0),
+            (s * forks.spacing / 2 - forks.width / 2, s * forks.spacing / 2 + forks.width / 2),
+            (-half_t, half_t),
+            "steel",
+            "fork",
+        )
+        for s in (-1, 1)
+    ]
+    backrest = _box(
+        fork_in_camera, (-forks.length - 0.06, -forks.length), (-0.55, 0.55), (-half_t, 1.2), "steel", "backrest"
+    )
+    return [*tines, backrest]
+
+
+def _pallet_boxes(in_camera: Transform, kind: PalletType, name: str) -> list[Box]:
+    half = kind.pocket_height / 2
+    boxes = [
+        _box(
+            in_camera,
+            (0.0, kind.length),
+            (-kind.width / 2, kind.width / 2),
+            (half, kind.deck_top),
+            "wood",
+            f"{name}.top",
+        )
+    ]
+    if kind.bottom > 0:
+        boxes.append(
+            _box(
+                in_camera,
+                (0.0, kind.length),
+                (-kind.width / 2, kind.width / 2),
+                (kind.deck_bottom, -half),
+                "wood",
+                f"{name}.bottom",
+            )
+        )
+    for j, block in enumerate(kind.blocks):
+        depth = block.depth if block.depth is not None else kind.length
+        boxes.append(
+            _box(
+                in_camera,
+                (0.0, depth),
+                (block.y - block.width / 2, block.y + block.width / 2),
+                (-half, half),
+                "wood",
+                f"{name}.block{j}",
+            )
+        )
+    return boxes
+
+
+def _load(in_camera: Transform, kind: PalletType, size: tuple[float, float, float]) -> list[Box]:
+    length, width, height = size
+    return [
+        _box(
+            in_camera, (0.0, length), (-width / 2, width / 2), (kind.deck_top, kind.deck_top + height), "carton", "load"
+        )
+    ]
+
+
+def _support(scene: Scene, kind: PalletType, target: Transform, fork_in_camera: Transform, forks: ForkGeometry) -> list:
+    """What the pallet stands on: a slab (truck bed or dock) inclined with the pallet, its rear edge just in
+    front of the pallet, and the level hall floor under the forks."""
+    bottom = float(scene.pallet.in_fork.apply([0.0, 0.0, kind.deck_bottom])[2])
+    hall = min(bottom, -forks.thickness / 2) - 0.03
+    material = "truck-bed" if scene.environment.floor == "truck-bed" else "concrete"
+    slab = _box(
+        target,
+        (-0.12, 4.0),
+        (-3.0, 3.0),
+        (kind.deck_bottom - (bottom - hall) - 0.5, kind.deck_bottom),
+        material,
+        "support",
+    )
+    return [slab, _floor(fork_in_camera @ Transform.from_euler(z=hall), "concrete")]
+
+
+def _background(scene: Scene, kind: PalletType, fork_in_camera: Transform, rng: np.random.Generator) -> list:
+    """Back wall and rack uprights (vertical lines: the paper's named failure mode)."""
+    px, _, pz = scene.pallet.in_fork.translation
+    wall = fork_in_camera @ Transform.from_euler(x=px + 5.0, pitch=-math.pi / 2)
+    objects: list[Box | Plane] = [Plane(wall, "wall", "wall")]
+    for _ in range(scene.environment.clutter_verticals):
+        near = rng.random() < 0.5  # half of them stand right beside the pallet, where load edges are sought
+        y = rng.choice([-1, 1]) * (kind.width / 2 + (rng.uniform(0.05, 0.4) if near else rng.uniform(0.4, 2.5)))
+        x = px + kind.length + (rng.uniform(0.05, 0.8) if near else rng.uniform(0.2, 3.0))
+        objects.append(
+            _box(fork_in_camera, (x, x + 0.08), (y - 0.04, y + 0.04), (pz - 1.5, pz + 3.5), "upright", "upright")
+        )
+    return objects
+
+
+# -- tracing and shading --------------------------------------------------------------------------
+
+
+def _subpixel_offsets(samples: int, rng: np.random.Generator) -> Array:
+    """Stratified jittered offsets (samples, 2) in pixel units."""
+    side = max(int(round(math.sqrt(samples))), 1)
+    cells = (np.stack(np.meshgrid(np.arange(side), np.arange(side)), -1).reshape(-1, 2) + 0.5) / side - 0.5
+    return cells + rng.uniform(-0.5, 0.5, cells.shape) / side
+
+
+def _trace(camera: CameraModel, objects: list, pallets: list[_Pallet], offsets: Array, light: float) -> Array:
+    """Shade every pixel centre, then re-shade with all sub-samples the pixels on a surface boundary.
+
+    Anti-aliasing only where a pixel's surface differs from a neighbour's keeps the cost near one ray
+    per pixel while edges, the only thing sub-pixel accuracy depends on, get every sample.
+    """
+    height, width = camera.height, camera.width
+    image = np.zeros((height, width, 3))
+    surface = np.full((height, width), -1, np.int64)
+    rects = screen_rectangles(camera, objects)
+    lights = _lights(objects)
+    for rows, pixels, where in _bands(camera):
+        colour, key = _sample(camera, objects, pallets, lights, rects, pixels, np.zeros((1, 2)))
+        image[rows][where] = colour
+        surface[rows][where] = key
+    boundary = np.zeros_like(surface, bool)
+    for axis in (0, 1):
+        change = np.diff(surface, axis=axis) != 0
+        boundary |= np.pad(change, [(0, 1) if a == axis else (0, 0) for a in (0, 1)])
+        boundary |= np.pad(change, [(1, 0) if a == axis else (0, 0) for a in (0, 1)])
+    for rows, pixels, where in _bands(camera):
+        edge = boundary[rows][where]
+        if edge.any():
+            colour, _ = _sample(camera, objects, pallets, lights, rects, pixels[edge], offsets)
+            band = image[rows]
+            band[np.nonzero(where)[0][edge], np.nonzero(where)[1][edge]] = colour
+    vignetting = np.zeros((height, width))
+    for rows, pixels, where in _bands(camera):
+        vignetting[rows][where] = _vignetting(camera, pixels)
+    return image * (light * vignetting)[:, :, None]
+
+
+def _bands(camera: CameraModel):
+    """(row slice, pixel centres (N, 2) inside the field of view, their mask in the band) per band."""
+    us = np.arange(camera.width, dtype=float)
+    for row0 in range(0, camera.height, BAND_ROWS):
+        rows = slice(row0, min(row0 + BAND_ROWS, camera.height))
+        vv, uu = np.meshgrid(np.arange(rows.start, rows.stop, dtype=float), us, indexing="ij")
+        centres = np.stack([uu.ravel(), vv.ravel()], 1)
+        inside = camera.valid_pixels(centres)
+        if inside.any():
+            yield rows, centres[inside], inside.reshape(uu.shape)
+
+
+def _sample(camera, objects, pallets, lights, rects, pixels: Array, offsets: Array) -> tuple[Array, NDArray]:
+    """Mean colour over sub-pixel ``offsets`` and the surface key (object, face) of the last sample."""
+    low, high = pixels.min(axis=0) - 1, pixels.max(axis=0) + 1
+    candidates = [
+        i
+        for i, r in enumerate(rects)
+        if r is None or (r[0] <= high[0] and r[2] >= low[0] and r[1] <= high[1] and r[3] >= low[1])
+    ]
+    colour = np.zeros((len(pixels), 3))
+    for offset in offsets:
+        origins, directions = camera.unproject(pixels + offset)
+        hits = cast(objects, origins, directions, candidates)
+        colour += _shade(objects, pallets, hits, origins, directions, lights)
+    axis = np.argmax(np.abs(hits.normal), axis=1)
+    face = axis * 2 + (hits.normal[np.arange(len(axis)), axis] > 0)
+    return colour / len(offsets), hits.index.astype(np.int64) * 8 + face
+
+
+def _lights(objects: list) -> list[tuple[Array, float]]:
+    """Two lamps above the pallet, given in the camera frame (derived from the floor's orientation)."""
+    up = next(
+        (o.pose.rotation[:, 2] for o in objects if isinstance(o, Plane) and o.name == "floor"),
+        np.array([0.0, 0.0, 1.0]),
+    )
+    forward = np.array([1.0, 0.0, 0.0]) - up * up[0]
+    forward /= np.linalg.norm(forward)
+    left = np.cross(up, forward)
+    first = 0.9 * up - 0.35 * forward + 0.3 * left
+    second = 0.8 * up + 0.5 * forward - 0.25 * left
+    return [(first / np.linalg.norm(first), 0.6), (second / np.linalg.norm(second), 0.3)]
+
+
+def _shade(objects, pallets, hits, origins, directions, lights) -> Array:
+    colour = np.full((len(origins), 3), SKY * 255.0)
+    hit = np.isfinite(hits.distance)
+    if not hit.any():
+        return colour
+    idx = hits.index[hit]
+    normal = hits.normal[hit]
+    points = origins[hit] + hits.distance[hit, None] * directions[hit]
+    irradiance = np.full(len(idx), 0.5)
+    for direction, power in lights:
+        irradiance += power * np.clip(normal @ direction, 0.0, None)
+    irradiance *= _pocket_occlusion(points, pallets)
+    albedo = np.empty(len(idx))
+    tint = np.empty((len(idx), 3))
+    for i in np.unique(idx):
+        sel = idx == i
+        obj = objects[i]
+        base, tone = MATERIALS[obj.material]
+        albedo[sel] = base * _texture(obj, hits.local[hit][sel], i)
+        tint[sel] = tone
+    colour[hit] = 255.0 * (albedo * irradiance)[:, None] * tint
+    return colour
+
+
+def _pocket_occlusion(points: Array, pallets: list[_Pallet]) -> Array:
+    """Ambient occlusion inside pockets: surfaces behind the front face, under the deck, grow dark."""
+    factor = np.ones(len(points))
+    for pallet in pallets:
+        local = (points - pallet.in_camera.translation) @ pallet.in_camera.rotation
+        kind = pallet.kind
+        inside = (
+            (local[:, 0] > 0.002)
+            & (local[:, 0] < kind.length)
+            & (np.abs(local[:, 1]) < kind.width / 2)
+            & (local[:, 2] < kind.pocket_height / 2 - 1e-4)
+            & (local[:, 2] > kind.deck_bottom - 0.01)
+        )
+        factor[inside] *= 0.12 + 0.3 * np.exp(-local[inside, 0] / 0.03)
+    return factor
+
+
+def _texture(obj: Box | Plane, local: Array, index: int) -> Array:
+    """Multiplicative albedo variation of a material at local points (N, 3)."""
+    phase = (index * 0.618) % 1.0
+    if obj.material == "wood":
+        along = int(np.argmax(obj.half)) if isinstance(obj, Box) else 0
+        a = local[:, along]
+        across = np.sum(np.delete(local, along, axis=1), axis=1)
+        grain = np.sin(2 * np.pi * (across / 0.0045 + 1.8 * np.sin(2 * np.pi * (a / 0.41 + phase))))
+        return 0.94 + 0.12 * phase + 0.05 * grain + 0.03 * np.sin(2 * np.pi * a / 0.13)
+    if obj.material == "carton":
+        y, z = local[:, 1] + obj.half[1], local[:, 2] + obj.half[2]
+        seams = (np.abs(((y + 0.25) % 0.5) - 0.25) > 0.246) | (np.abs(((z + 0.2) % 0.4) - 0.2) > 0.196)
+        return np.where(seams, 0.55, 1.0 + 0.03 * np.sin(2 * np.pi * (y / 0.07 + z / 0.11)))
+    if obj.material in ("concrete", "truck-bed", "wall"):
+        x, y = local[:, 0], local[:, 1]
+        value = 0.9 + 0.06 * np.sin(2 * np.pi * x / 0.9) * np.sin(2 * np.pi * y / 0.7)
+        if obj.material == "truck-bed":
+            value *= np.where(np.abs((y % 0.3) - 0.15) > 0.145, 0.6, 1.0)
+        return value
+    return np.ones(len(local))
+
+
+def _vignetting(camera: CameraModel, pixels: Array) -> Array:
+    _, directions = camera.unproject(pixels)
+    incidence = np.arccos(np.clip(directions[:, 0], -1.0, 1.0))
+    return 1.0 - 0.35 * (incidence / camera.max_incidence) ** 2
+
+
+def _sensor(image: Array, scene: Scene, rng: np.random.Generator) -> NDArray[np.uint8]:
+    noise = scene.noise
+    if noise.blur_px > 0:
+        image = cv2.GaussianBlur(image, (0, 0), noise.blur_px)
+    if noise.sigma > 0:
+        image = image + rng.normal(0.0, noise.sigma, image.shape)
+    out = np.clip(np.round(image), 0, 255).astype(np.uint8)
+    if noise.jpeg_quality is not None:
+        ok, data = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, noise.jpeg_quality])
+        out = cv2.imdecode(data, cv2.IMREAD_COLOR)
+    return out
