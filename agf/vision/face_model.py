@@ -43,26 +43,28 @@ class FaceModel:
         image[outside] = 0.5
         return image, y, z
 
-    def edge_points(self, spacing: float, inset: float = 0.012) -> tuple[Array, Array]:
-        """Points (N, 3) on the pocket boundaries and unit normals (N, 3) pointing from wood into the pocket.
+    def edge_points(self, spacing: float, inset: float = 0.012) -> tuple[Array, Array, NDArray[np.int_]]:
+        """Points (N, 3) on the pocket boundaries, unit normals (N, 3) pointing from wood into the pocket,
+        and each point's edge group (N,): 0 pocket tops, 1 pocket bottoms, 2 pocket sides.
 
         Points stay ``inset`` m away from pocket corners, where two edges blur into each other.
         """
-        points, normals = [], []
+        points, normals, groups = [], [], []
         for y0, y1, z0, z1 in self.pockets:
             along_y = _samples(y0 + inset, y1 - inset, spacing)
             along_z = _samples(z0 + inset, z1 - inset, spacing)
             edges = [
-                (np.c_[0 * along_y, along_y, 0 * along_y + z1], (0.0, 0.0, -1.0)),  # top: wood above
-                (np.c_[0 * along_z, 0 * along_z + y0, along_z], (0.0, 1.0, 0.0)),  # right: block at lower y
-                (np.c_[0 * along_z, 0 * along_z + y1, along_z], (0.0, -1.0, 0.0)),  # left
+                (np.c_[0 * along_y, along_y, 0 * along_y + z1], (0.0, 0.0, -1.0), 0),  # top: wood above
+                (np.c_[0 * along_z, 0 * along_z + y0, along_z], (0.0, 1.0, 0.0), 2),  # right: block at lower y
+                (np.c_[0 * along_z, 0 * along_z + y1, along_z], (0.0, -1.0, 0.0), 2),  # left
             ]
             if not self.pockets_open_below:
-                edges.append((np.c_[0 * along_y, along_y, 0 * along_y + z0], (0.0, 0.0, 1.0)))
-            for p, n in edges:
+                edges.append((np.c_[0 * along_y, along_y, 0 * along_y + z0], (0.0, 0.0, 1.0), 1))
+            for p, n, g in edges:
                 points.append(p)
                 normals.append(np.tile(n, (len(p), 1)))
-        return np.concatenate(points), np.concatenate(normals)
+                groups.append(np.full(len(p), g))
+        return np.concatenate(points), np.concatenate(normals), np.concatenate(groups)
 
     def corners(self) -> Array:
         """The four corners (4, 3) of the face: top-left, top-right, bottom-right, bottom-left."""

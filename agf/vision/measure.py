@@ -177,4 +177,3 @@ def _prior(path: str | None) -> Transform | None:
         return transform_from_dict(pose, where=f"{path}: pallet_in_fork")
     except ValueError as exc:
         raise InputError(str(exc)) from exc
-

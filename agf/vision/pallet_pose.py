@@ -45,6 +45,10 @@ class PoseSearchConfig:
 
     coarse_pixel: float = 0.02  # m per virtual pixel at the middle search depth
     pyramid_level: int = 3
+    fine_pixel: float = 0.005  # second scan, around each coarse candidate
+    fine_level: int = 1
+    fine_window: tuple[float, float, float] = (0.12, 0.04, 0.12)  # m around a coarse candidate (x, y, z)
+    min_group_inliers: float = 0.6  # fraction of each edge group (top, bottom, sides) that must fit
     yaw_step: float = math.radians(4.0)
     prior_window: float = 0.3  # m around a prior in x, y, z
     prior_yaw_window: float = math.radians(10.0)
@@ -128,27 +132,41 @@ def estimate_pallet_pose(
     if pitch is None:
         pitch = prior.euler[1] if prior is not None else 0.0
     box = _search_box(volume, prior, pitch, config)
-    candidates = _coarse_candidates(gray, camera, camera_in_fork, face, box, pitch, config)
+    coarse = _scan(
+        _pyramid(gray, config.pyramid_level),
+        config.pyramid_level,
+        config.coarse_pixel,
+        1.0,
+        camera,
+        camera_in_fork,
+        face,
+        box,
+    )
+    fine_image = _pyramid(gray, config.fine_level)
+    candidates = [
+        _rescan(fine_image, camera, camera_in_fork, face, params, config) for _, params in coarse[: config.candidates]
+    ]
+    candidates = sorted([c for c in candidates if c is not None], key=lambda c: -c[0]) + coarse[config.candidates :]
     timing["coarse"] = (time.perf_counter() - start) * 1e3
     if not candidates:
         raise MeasurementError("no pallet front face found in the search volume")
 
     t = time.perf_counter()
     smooth = cv2.GaussianBlur(gray, (0, 0), 1.0)
-    points, normals = face.edge_points(config.edge_spacing)
+    points, normals, groups = face.edge_points(config.edge_spacing)
     fitted = []
     for _, params in candidates[: config.candidates]:
-        fit = _refine(smooth, camera, camera_in_fork, params, points, normals, forks, config)
+        fit = _refine(smooth, camera, camera_in_fork, params, points, normals, groups, forks, config)
         if fit is not None:
             fitted.append((_face_similarity(gray, camera, camera_in_fork, face, fit[0]), *fit))
     timing["refine"] = (time.perf_counter() - t) * 1e3
     if not fitted:
         raise MeasurementError("the pallet front face could not be fitted to image edges")
     fitted.sort(key=lambda f: -f[0])
-    score, params, residual, used, occluded = fitted[0]
+    score, params, residual, used, occluded, worst_group = fitted[0]
     margin = _margin(score, params, fitted[1:], candidates, face, camera_in_fork.translation)
     timing["total"] = (time.perf_counter() - start) * 1e3
-    _check_verdict(camera, camera_in_fork, face, params, score, margin, residual, occluded, config)
+    _check_verdict(camera, camera_in_fork, face, params, score, margin, residual, occluded, worst_group, config)
     pallet_in_fork = params.transform()
     return PoseEstimate(
         camera_in_fork.inverse() @ pallet_in_fork, pallet_in_fork, score, margin, residual, used, occluded, timing
@@ -183,33 +201,48 @@ def _search_box(volume: SearchVolume, prior: Transform | None, pitch: float, con
 # -- coarse stage ---------------------------------------------------------------------------------
 
 
-def _coarse_candidates(
-    gray: NDArray[np.float32],
+def _scan(
+    level_image: NDArray[np.float32],
+    level: int,
+    pixel: float,
+    scale_step_px: float,
     camera: CameraModel,
     camera_in_fork: Transform,
     face: FaceModel,
     box: _Box,
-    pitch: float,
-    config: PoseSearchConfig,
 ) -> list[tuple[float, _Params]]:
-    """(score, params) of the best normalised-correlation peaks, best first."""
-    level = _pyramid(gray, config.pyramid_level)
+    """(score, params) of the best normalised-correlation peaks over ``box``, best first, one per place."""
     fork_in_camera = camera_in_fork.inverse()
-    corners = np.array([[x, y, z] for x in box.low[0:1].tolist() + box.high[0:1].tolist()
-                        for y in (box.low[1], box.high[1]) for z in (box.low[2], box.high[2])])
+    corners = np.array(
+        [
+            [x, y, z]
+            for x in (box.low[0], box.high[0])
+            for y in (box.low[1], box.high[1])
+            for z in (box.low[2], box.high[2])
+        ]
+    )
     found: list[tuple[float, _Params]] = []
     for yaw in box.yaws:
-        R_cv = fork_in_camera.rotation @ matrix_from_euler(yaw, pitch, 0.0)
+        R_cv = fork_in_camera.rotation @ matrix_from_euler(yaw, box.pitch, 0.0)
         origins_v = fork_in_camera.apply(corners) @ R_cv  # pallet origins in the view frame
-        depth_mid = float(np.mean(origins_v[:, 0]))
-        f = depth_mid / config.coarse_pixel
+        f = float(np.mean(origins_v[:, 0])) / pixel
         window = _window(origins_v, face, f)
-        view = _view(level, camera, _key(R_cv), window, f, config.pyramid_level)
-        scales = np.arange(f / np.max(origins_v[:, 0]), f / np.min(origins_v[:, 0]), 1.0 / face.width)
-        for scale in scales:
-            found += _peaks(view, face, scale, f, window, R_cv, fork_in_camera, yaw, pitch, box)
+        view = _view(level_image, camera, _key(R_cv), window, f, level)
+        step = scale_step_px / face.width
+        for scale in np.arange(f / np.max(origins_v[:, 0]), f / np.min(origins_v[:, 0]) + step / 2, step):
+            found += _peaks(view, face, scale, f, window, R_cv, fork_in_camera, yaw, box)
     found.sort(key=lambda c: -c[0])
-    return _distinct(found, face, camera_in_fork.translation)[: max(config.candidates, 2)]
+    return _distinct(found, face, camera_in_fork.translation)
+
+
+def _rescan(fine_image, camera, camera_in_fork, face, params: _Params, config: PoseSearchConfig):
+    """The best (score, params) of a finer scan around one coarse candidate, or None."""
+    window = np.array(config.fine_window)
+    centre = np.array([params.x, params.y, params.z])
+    yaws = (params.yaw - config.yaw_step / 2, params.yaw, params.yaw + config.yaw_step / 2)
+    box = _Box(centre - window, centre + window, yaws, params.pitch)
+    found = _scan(fine_image, config.fine_level, config.fine_pixel, 2.0, camera, camera_in_fork, face, box)
+    return found[0] if found else None
 
 
 def _window(origins_v: Array, face: FaceModel, f: float) -> tuple[int, int, int, int]:
@@ -245,7 +278,7 @@ def _view_maps(camera: CameraModel, R_key: tuple, window: tuple, f: float, lvl: 
     return pixels[:, 0].reshape(shape).astype(np.float32), pixels[:, 1].reshape(shape).astype(np.float32)
 
 
-def _peaks(view, face, scale, f, window, R_cv, fork_in_camera, yaw, pitch, box) -> list[tuple[float, _Params]]:
+def _peaks(view, face, scale, f, window, R_cv, fork_in_camera, yaw, box) -> list[tuple[float, _Params]]:
     pixel = 1.0 / scale
     template, ys, zs = face.raster(pixel)
     if template.shape[0] < 3 or template.shape[0] >= view.shape[0] or template.shape[1] >= view.shape[1]:
@@ -265,7 +298,7 @@ def _peaks(view, face, scale, f, window, R_cv, fork_in_camera, yaw, pitch, box) 
         origin_v = np.array([depth, -col_c * depth / f - y_mid, -row_c * depth / f - z_mid])
         x, y, z = fork_in_camera.inverse().apply(R_cv @ origin_v)
         if np.all((np.array([x, y, z]) >= box.low - 0.05) & (np.array([x, y, z]) <= box.high + 0.05)):
-            out.append((float(response[r, c]), _Params(x, y, z, yaw, pitch)))
+            out.append((float(response[r, c]), _Params(x, y, z, yaw, box.pitch)))
     return out
 
 
@@ -289,11 +322,16 @@ def _same_place(p: _Params, q: _Params, face: FaceModel, eye: Array) -> bool:
 # -- fine stage -----------------------------------------------------------------------------------
 
 
-def _refine(smooth, camera, camera_in_fork, params, points, normals, forks, config):
-    """Gauss-Newton on pocket-edge offsets; (params, residual_px, edges_used, occluded) or None."""
+def _refine(smooth, camera, camera_in_fork, params, points, normals, groups, forks, config):
+    """Gauss-Newton on pocket-edge offsets.
+
+    Returns (params, residual_px, edges_used, occluded, worst group inlier fraction) or None. Each edge
+    group (pocket tops, bottoms, sides) weighs the same in total, so the many horizontal edge points
+    cannot outvote the few vertical ones that fix the scale, hence the depth.
+    """
     fork_in_camera = camera_in_fork.inverse()
     steps = np.array([1e-3, 1e-3, 1e-3, math.radians(0.05)])
-    residual, used, occluded = math.inf, 0, 0.0
+    residual, used, occluded, worst = math.inf, 0, 0.0, 0.0
     for radius in config.radii_px:
         T = fork_in_camera @ params.transform()
         p0, valid = camera.project(T.apply(points))
@@ -311,19 +349,24 @@ def _refine(smooth, camera, camera_in_fork, params, points, normals, forks, conf
         usable = valid & edges.valid & ~hidden
         if usable.sum() < 12:
             return None
-        weights = _tukey(edges.offset, usable, edges.strength)
+        weights = _tukey(edges.offset, usable, edges.strength, floor=radius / 4)
+        inliers = weights > 0
+        fractions = [float(np.mean(inliers[groups == g])) for g in np.unique(groups)]
+        for g in np.unique(groups):
+            total = weights[groups == g].sum()
+            weights[groups == g] *= 1.0 / total if total > 0 else 0.0
         sw = np.sqrt(weights)
         delta = np.linalg.lstsq(J * sw[:, None], edges.offset * sw, rcond=None)[0]
         params = params.moved(delta)
-        inliers = weights > 0
         residual = float(np.sqrt(np.mean((edges.offset - J @ delta)[inliers] ** 2))) if inliers.any() else math.inf
-        used = int(inliers.sum())
-    return params, residual, used, occluded
+        used, worst = int(inliers.sum()), min(fractions)
+    return params, residual, used, occluded, worst
 
 
-def _tukey(offset: Array, usable: NDArray[np.bool_], strength: Array) -> Array:
-    """Tukey biweights with a scale from the median absolute offset; weak edges weigh less."""
-    scale = max(1.4826 * float(np.median(np.abs(offset[usable]))), 0.5)
+def _tukey(offset: Array, usable: NDArray[np.bool_], strength: Array, floor: float) -> Array:
+    """Tukey biweights with a scale from the median absolute offset (at least ``floor`` px); weak edges
+    weigh less."""
+    scale = max(1.4826 * float(np.median(np.abs(offset[usable]))), floor)
     c = 4.685 * scale
     w = np.where(usable & (np.abs(offset) < c), (1 - (offset / c) ** 2) ** 2, 0.0)
     strong = np.median(strength[usable])
@@ -379,7 +422,9 @@ def _margin(score, params, others, candidates, face, eye) -> float:
     return min(margins) if margins else score
 
 
-def _check_verdict(camera, camera_in_fork, face, params, score, margin, residual, occluded, config) -> None:
+def _check_verdict(
+    camera, camera_in_fork, face, params, score, margin, residual, occluded, worst_group, config
+) -> None:
     T = camera_in_fork.inverse() @ params.transform()
     _, valid = camera.project(T.apply(face.corners()))
     if not valid.all():
@@ -392,6 +437,11 @@ def _check_verdict(camera, camera_in_fork, face, params, score, margin, residual
         raise MeasurementError(
             f"ambiguous pallet: the runner-up is within {margin:.2f} of the best similarity {score:.2f} "
             f"(need {config.min_margin:.2f})"
+        )
+    if worst_group < config.min_group_inliers:
+        raise MeasurementError(
+            f"pocket edges fit poorly: only {worst_group:.0%} of one edge group agrees with the fitted pose "
+            f"(need {config.min_group_inliers:.0%})"
         )
     if residual > config.max_residual_px:
         raise MeasurementError(f"pocket edges fit poorly: residual {residual:.2f} px > {config.max_residual_px} px")

@@ -113,9 +113,7 @@ def panorama_maps(camera: CameraModel, panorama: Panorama) -> tuple[NDArray, NDA
     return fixed_xy, fixed_frac, valid.reshape(shape)
 
 
-def render_panorama(
-    image: NDArray, camera: CameraModel, panorama: Panorama
-) -> tuple[NDArray, NDArray[np.bool_]]:
+def render_panorama(image: NDArray, camera: CameraModel, panorama: Panorama) -> tuple[NDArray, NDArray[np.bool_]]:
     """The panorama of a fisheye ``image`` (bilinear) and its validity mask (pixels outside the lens)."""
     if image.shape[:2] != (camera.height, camera.width):
         raise ValueError(
