@@ -8,6 +8,7 @@ pose again at the measured pitch, until pose and pitch agree. ``agf measure`` is
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import time
@@ -25,7 +26,7 @@ from agf.geometry import Transform, transform_from_dict
 from agf.measurement import PalletMeasurement, pose_json
 from agf.pallets import PalletType, load_pallets, pallet_type
 from agf.vision.face_model import face_model_from_pallet
-from agf.vision.pallet_pose import PoseEstimate, PoseSearchConfig, estimate_pallet_pose
+from agf.vision.pallet_pose import PoseEstimate, PoseSearchConfig, check_pose_estimate, estimate_pallet_pose
 from agf.vision.pitch import PitchConfig, PitchEvidence, loaded_evidence, unloaded_evidence
 
 
@@ -66,8 +67,18 @@ def measure_pallet(
     face = face_model_from_pallet(pallet)
     pitch = prior.euler[1] if prior is not None else 0.0
     pose = estimate_pallet_pose(
-        gray, camera, camera_in_fork, face, volume, prior=prior, pitch=pitch, forks=forks, config=config.pose
+        gray,
+        camera,
+        camera_in_fork,
+        face,
+        volume,
+        prior=prior,
+        pitch=pitch,
+        forks=forks,
+        config=config.pose,
+        check=False,
     )
+    first = pose
     timing["pose"] = pose.timing_ms.get("total", 0.0)
     evidence: dict[str, PitchEvidence] = {}
     for _ in range(config.iterations):
@@ -94,10 +105,15 @@ def measure_pallet(
             pitch=pitch,
             forks=forks,
             config=narrow,
+            check=False,
         )
         timing["pose"] += (time.perf_counter() - t) * 1e3
     else:
         raise MeasurementError(f"pose and pitch did not agree after {config.iterations} iterations")
+    # The narrow re-searches see no rivals; the wide first search did, at the assumed pitch.
+    rival = first.score - first.margin
+    pose = dataclasses.replace(pose, margin=min(pose.margin, pose.score - rival))
+    check_pose_estimate(pose, camera, face, config.pose)
     timing["total"] = (time.perf_counter() - start) * 1e3
     measurement = PalletMeasurement(
         pallet_in_camera=pose.pallet_in_camera,

@@ -58,7 +58,7 @@ class PoseSearchConfig:
     max_residual_px: float = 1.5
     max_occluded: float = 0.25
     edge_spacing: float = 0.006
-    radii_px: tuple[float, ...] = (8.0, 5.0, 3.0, 2.0, 2.0, 2.0)
+    radii_px: tuple[float, ...] = (4.0, 3.0, 2.0, 2.0, 2.0)
 
 
 @dataclass(frozen=True)
@@ -72,6 +72,7 @@ class PoseEstimate:
     residual_px: float
     edges_used: int
     occluded: float
+    group_inliers: float
     timing_ms: dict[str, float] = field(default_factory=dict)
 
 
@@ -103,6 +104,7 @@ def estimate_pallet_pose(
     pitch: float | None = None,
     forks: ForkGeometry | None = None,
     config: PoseSearchConfig = PoseSearchConfig(),
+    check: bool = True,
 ) -> PoseEstimate:
     """Find the pallet's front face; see the module docstring.
 
@@ -120,6 +122,8 @@ def estimate_pallet_pose(
         ``pallet_in_fork`` known to about +-0.3 m and +-10 deg (approach phase); narrows the search.
     pitch : float, optional
         Pallet pitch (rad) to assume; default the prior's, else 0.
+    check : bool
+        Apply :func:`check_pose_estimate`; a caller iterating pose and pitch checks only its final pose.
 
     Raises
     ------
@@ -166,11 +170,21 @@ def estimate_pallet_pose(
     score, params, residual, used, occluded, worst_group = fitted[0]
     margin = _margin(score, params, fitted[1:], candidates, face, camera_in_fork.translation)
     timing["total"] = (time.perf_counter() - start) * 1e3
-    _check_verdict(camera, camera_in_fork, face, params, score, margin, residual, occluded, worst_group, config)
     pallet_in_fork = params.transform()
-    return PoseEstimate(
-        camera_in_fork.inverse() @ pallet_in_fork, pallet_in_fork, score, margin, residual, used, occluded, timing
+    estimate = PoseEstimate(
+        camera_in_fork.inverse() @ pallet_in_fork,
+        pallet_in_fork,
+        score,
+        margin,
+        residual,
+        used,
+        occluded,
+        worst_group,
+        timing,
     )
+    if check:
+        check_pose_estimate(estimate, camera, face, config)
+    return estimate
 
 
 # -- search space ---------------------------------------------------------------------------------
@@ -351,7 +365,8 @@ def _refine(smooth, camera, camera_in_fork, params, points, normals, groups, for
             return None
         weights = _tukey(edges.offset, usable, edges.strength, floor=radius / 4)
         inliers = weights > 0
-        fractions = [float(np.mean(inliers[groups == g])) for g in np.unique(groups)]
+        seen = valid & ~hidden
+        fractions = [float(np.mean(inliers[seen & (groups == g)])) for g in np.unique(groups[seen])]
         for g in np.unique(groups):
             total = weights[groups == g].sum()
             weights[groups == g] *= 1.0 / total if total > 0 else 0.0
@@ -422,11 +437,14 @@ def _margin(score, params, others, candidates, face, eye) -> float:
     return min(margins) if margins else score
 
 
-def _check_verdict(
-    camera, camera_in_fork, face, params, score, margin, residual, occluded, worst_group, config
+def check_pose_estimate(
+    estimate: PoseEstimate, camera: CameraModel, face: FaceModel, config: PoseSearchConfig = PoseSearchConfig()
 ) -> None:
-    T = camera_in_fork.inverse() @ params.transform()
-    _, valid = camera.project(T.apply(face.corners()))
+    """Raise :class:`MeasurementError` with the reason unless the estimate is convincing: face in view,
+    not hidden by the forks, similar enough, clearly better than any rival, edges fitting."""
+    score, margin, residual = estimate.score, estimate.margin, estimate.residual_px
+    occluded, worst_group = estimate.occluded, estimate.group_inliers
+    _, valid = camera.project(estimate.pallet_in_camera.apply(face.corners()))
     if not valid.all():
         raise MeasurementError("the pallet is partly out of view: a corner of its front face is outside the image")
     if occluded > config.max_occluded:

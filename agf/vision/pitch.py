@@ -146,7 +146,8 @@ def _evidence(
             panorama.angles_from_pixels(region[None, [0, 2]])[0][0],
             panorama.angles_from_pixels(region[None, [1, 2]])[0][0],
         )
-        line = hough_line(panorama, directions[inside], weights[inside], lon, tau_max=config.tau_max)
+        corrected = _from_reference_viewpoint(camera, directions[inside], segment)
+        line = hough_line(panorama, corrected, weights[inside], lon, tau_max=config.tau_max)
         length = max(region[3] - region[2], 1.0)
         ratios.append(0.0 if line is None else min(line.score / length, 1.0))
         if line is not None:
@@ -203,6 +204,23 @@ def _edge_points(image: NDArray[np.float32], valid: NDArray[np.bool_], panorama:
     columns = cols + offset
     directions = panorama.directions_from_pixels(np.stack([columns, rows.astype(float)], axis=1))
     return directions, np.ones(len(rows)), columns, rows.astype(float)
+
+
+def _from_reference_viewpoint(camera: CameraModel, directions: Array, segment: Array) -> Array:
+    """Directions from the reference viewpoint to the edge points, undoing the viewpoint shift.
+
+    A ray leaves the lens at its own shifted pupil, so edge points of one 3D line are not on one great
+    circle of ray directions. Placing each point on its ray at the depth of the predicted line (a depth
+    error of a few per cent moves it by a fraction of the millimetre-scale shift) restores that.
+    """
+    origins = camera.origins(directions)
+    if not np.any(origins):
+        return directions
+    start, u = segment[0], _unit(segment[-1:] - segment[:1])[0]
+    w = start - origins
+    du = directions @ u
+    depth = (np.sum(w * directions, axis=1) - (w @ u) * du) / np.maximum(1.0 - du**2, 1e-9)
+    return _unit(origins + depth[:, None] * directions)
 
 
 def _unit(points: Array) -> Array:
