@@ -1,0 +1,44 @@
+"""Rendered scene sets, made once per test session (two processes: CI has two cores)."""
+
+from __future__ import annotations
+
+from multiprocessing import get_context
+from pathlib import Path
+
+import cv2
+import pytest
+
+from agf.paths import repo_path
+
+SCENES = repo_path("tests/data/scenes")
+SHARED_DATA = repo_path("../shared/data")
+
+
+def _render(job: tuple[str, str]) -> str:
+    from agf.scene import load_scene
+    from drivers.sim.render import render
+
+    scene_path, out = job
+    image, _ = render(load_scene(scene_path))
+    cv2.imwrite(out, image)
+    return out
+
+
+def render_all(scene_paths: list[Path], out_dir: Path) -> dict[str, Path]:
+    jobs = [(str(p), str(out_dir / f"{p.parent.name}-{p.stem}.png")) for p in scene_paths]
+    with get_context("fork").Pool(2) as pool:
+        pool.map(_render, jobs)
+    return {f"{p.parent.name}/{p.stem}": out_dir / f"{p.parent.name}-{p.stem}.png" for p in scene_paths}
+
+
+def scene_files() -> list[Path]:
+    files = sorted((SCENES / "paper").glob("*.yaml")) + sorted((SCENES / "robust").glob("*.yaml"))
+    if not SHARED_DATA.is_dir():  # the real-lens scene needs ../shared/data
+        files = [f for f in files if "shared/data" not in f.read_text()]
+    return files
+
+
+@pytest.fixture(scope="session")
+def rendered(tmp_path_factory) -> dict[str, Path]:
+    """``{"paper/<name>" | "robust/<name>": rendered PNG}`` for every scene file."""
+    return render_all(scene_files(), tmp_path_factory.mktemp("renders"))

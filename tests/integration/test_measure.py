@@ -1,0 +1,82 @@
+"""Pallet pose and pitch on rendered scenes: the paper's 18 configurations and a robustness set.
+
+Bounds (issues 5 and 9): x and z within 5 mm, yaw within 0.3 deg, pitch within 0.1 deg; a scene is
+either measured within them or refused with a reason, never wrong and accepted.
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import pytest
+
+from agf.camera import load_camera
+from agf.config import load_config
+from agf.errors import MeasurementError
+from agf.pallets import load_pallets
+from agf.paths import DEFAULT_CONFIG
+from agf.scene import load_scene
+from agf.vision.measure import measure_pallet
+from tests.integration.conftest import SCENES, scene_files
+
+CONFIG = load_config(DEFAULT_CONFIG)
+CATALOGUE = load_pallets(CONFIG.vision.pallets)
+PAPER = [f"paper/{p.stem}" for p in sorted((SCENES / "paper").glob("*.yaml"))]
+ROBUST = [f"{p.parent.name}/{p.stem}" for p in scene_files() if p.parent.name == "robust"]
+
+
+def measure(key: str, rendered, pallet_type: str | None = None):
+    scene = load_scene(SCENES / f"{key}.yaml")
+    image = cv2.imread(str(rendered[key]), cv2.IMREAD_GRAYSCALE)
+    pallet = CATALOGUE[pallet_type or scene.pallet.type]
+    detail = measure_pallet(image, load_camera(scene.camera), scene.camera_in_fork, pallet, CONFIG.vision.search,
+                            forks=CONFIG.forks)
+    return scene, detail.measurement
+
+
+def errors(scene, measurement) -> dict[str, float]:
+    est, gt = measurement.pallet_in_fork.to_dict(), scene.pallet.in_fork.to_dict()
+    return {key: est[key] - gt[key] for key in ("x_mm", "y_mm", "z_mm", "pitch_deg", "yaw_deg")}
+
+
+def within_bounds(e: dict[str, float]) -> bool:
+    return (abs(e["x_mm"]) <= 5 and abs(e["z_mm"]) <= 5 and abs(e["y_mm"]) <= 5 and abs(e["yaw_deg"]) <= 0.3
+            and abs(e["pitch_deg"]) <= 0.1)
+
+
+@pytest.mark.parametrize("key", PAPER)
+def test_paper_scene_is_measured_within_bounds(key, rendered):
+    scene, measurement = measure(key, rendered)
+    e = errors(scene, measurement)
+    assert within_bounds(e), e
+    assert measurement.loaded == scene.loaded
+
+
+@pytest.mark.parametrize("key", ROBUST)
+def test_robust_scene_is_within_bounds_or_refused(key, rendered):
+    try:
+        scene, measurement = measure(key, rendered)
+    except MeasurementError as exc:
+        assert str(exc)  # a refusal must say why
+        return
+    e = errors(scene, measurement)
+    assert within_bounds(e), e
+    assert measurement.loaded == scene.loaded
+
+
+def test_wrong_pallet_type_is_refused_not_measured(rendered):
+    """An EUR pallet measured as a JIS one must not pass as a pose."""
+    with pytest.raises(MeasurementError):
+        measure("robust/epal", rendered, pallet_type="jis-t11")
+
+
+def test_pose_with_prior_agrees_with_the_search(rendered):
+    scene, searched = measure("paper/unloaded-middle-flat", rendered)
+    image = cv2.imread(str(rendered["paper/unloaded-middle-flat"]), cv2.IMREAD_GRAYSCALE)
+    prior = scene.pallet.in_fork.__class__.from_euler(
+        *(scene.pallet.in_fork.translation + [0.2, -0.15, 0.1]), 0.0, 0.0, math.radians(6.0)
+    )
+    detail = measure_pallet(image, load_camera(scene.camera), scene.camera_in_fork, CATALOGUE["jis-t11"],
+                            CONFIG.vision.search, forks=CONFIG.forks, prior=prior)
+    assert within_bounds(errors(scene, detail.measurement))
