@@ -173,7 +173,7 @@ def measure_command(
     if overlay:
         from agf.viz import measurement_overlay
 
-        measurement_overlay(frame, model, camera_in_fork, pallet, detail, Path(overlay))
+        measurement_overlay(frame, model, pallet, detail, Path(overlay))
     return result
 
 

@@ -80,3 +80,32 @@ def test_pose_with_prior_agrees_with_the_search(rendered):
     detail = measure_pallet(image, load_camera(scene.camera), scene.camera_in_fork, CATALOGUE["jis-t11"],
                             CONFIG.vision.search, forks=CONFIG.forks, prior=prior)
     assert within_bounds(errors(scene, detail.measurement))
+
+
+def test_agf_measure_cli_prints_the_contract_and_writes_the_overlay(rendered, tmp_path, capsys):
+    import json
+
+    from agf.cli import main
+
+    overlay = tmp_path / "overlay.png"
+    code = main(["measure", str(rendered["paper/loaded-low-flat"]), "--json", "--overlay", str(overlay)])
+    result = json.loads(capsys.readouterr().out)
+    assert code == 0 and result["ok"] is True and result["loaded"] is True
+    assert set(result["pallet_in_fork"]) == {"x_mm", "y_mm", "z_mm", "pitch_deg", "yaw_deg"}
+    assert abs(result["pallet_in_fork"]["z_mm"] - 355) <= 5
+    assert set(result["scores"]) == {"loaded", "unloaded"} and result["timing_ms"]["total"] > 0
+    assert cv2.imread(str(overlay)) is not None
+
+
+def test_agf_measure_refuses_an_image_without_a_pallet(tmp_path, capsys):
+    import json
+
+    import numpy as np
+
+    from agf.cli import main
+
+    blank = tmp_path / "blank.png"
+    cv2.imwrite(str(blank), np.full((1920, 1920), 128, np.uint8))
+    code = main(["measure", str(blank), "--json"])
+    result = json.loads(capsys.readouterr().out)
+    assert code == 1 and result["ok"] is False and result["error"]

@@ -1,0 +1,117 @@
+"""Overlays and plots (PNG) for people: what the vision saw and what the controller did.
+
+Drawing only; nothing here decides anything. Images are BGR uint8, as OpenCV writes them.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from agf.camera.base import CameraModel
+from agf.geometry import Transform
+from agf.pallets import PalletType
+from agf.vision.face_model import face_model_from_pallet
+from agf.vision.panorama import render_panorama
+
+GREEN, RED, YELLOW, CYAN = (60, 200, 60), (40, 40, 230), (0, 215, 255), (230, 200, 0)
+
+
+def polyline(image: NDArray, camera: CameraModel, points_c: NDArray, colour, thickness: int = 2) -> None:
+    """Draw a 3D polyline (camera frame, densified by the caller) where it projects into ``image``."""
+    pixels, valid = camera.project(points_c)
+    runs = np.split(np.arange(len(pixels)), np.nonzero(~valid)[0])
+    for run in runs:
+        run = run[valid[run]]
+        if len(run) >= 2:
+            cv2.polylines(
+                image, [np.round(pixels[run] * 8).astype(np.int32)], False, colour, thickness, cv2.LINE_AA, shift=3
+            )
+
+
+def densify(corners: NDArray, closed: bool = True, n: int = 40) -> NDArray:
+    """Points along the segments joining ``corners`` (K, 3), so fisheye curvature is drawn faithfully."""
+    ends = np.vstack([corners, corners[:1]]) if closed else corners
+    t = np.linspace(0.0, 1.0, n)[:, None]
+    return np.concatenate([a + t * (b - a) for a, b in zip(ends[:-1], ends[1:], strict=True)])
+
+
+def draw_face(image: NDArray, camera: CameraModel, pallet_in_camera: Transform, pallet: PalletType, colour) -> None:
+    """The pallet's front face outline and pocket openings at a pose."""
+    face = face_model_from_pallet(pallet)
+    polyline(image, camera, pallet_in_camera.apply(densify(face.corners())), colour)
+    for y0, y1, z0, z1 in face.pockets:
+        pocket = np.array([[0, y1, z1], [0, y0, z1], [0, y0, z0], [0, y1, z0]], dtype=float)
+        polyline(image, camera, pallet_in_camera.apply(densify(pocket)), colour, 1)
+
+
+def _panorama_panel(gray: NDArray, camera: CameraModel, evidence: Any, height: int) -> NDArray:
+    pano, valid = render_panorama(gray, camera, evidence.panorama)
+    panel = cv2.cvtColor(np.where(valid, pano, 0).astype(np.uint8), cv2.COLOR_GRAY2BGR)
+    for region in evidence.regions:
+        c0, c1, r0, r1 = np.round(region).astype(int)
+        cv2.rectangle(panel, (c0, r0), (c1, r1), YELLOW, 1)
+    for line, region in zip(evidence.lines, evidence.regions, strict=False):
+        centre = evidence.panorama.directions_from_pixels(np.array([[region[:2].mean(), region[2:].mean()]]))[0]
+        t = np.linspace(-0.6, 0.6, 400)
+        start = centre - (centre @ line.normal) * line.normal  # the circle's point nearest the region
+        start /= np.linalg.norm(start)
+        other = np.cross(line.normal, start)
+        points = np.cos(t)[:, None] * start + np.sin(t)[:, None] * other
+        pixels = evidence.panorama.pixels_from_directions(points)
+        inside = (
+            (pixels[:, 0] >= 0)
+            & (pixels[:, 0] < panel.shape[1])
+            & (pixels[:, 1] >= 0)
+            & (pixels[:, 1] < panel.shape[0])
+        )
+        if inside.sum() >= 2:
+            cv2.polylines(
+                panel,
+                [np.round(pixels[inside]).astype(np.int32)],
+                False,
+                GREEN if evidence.valid else RED,
+                1,
+                cv2.LINE_AA,
+            )
+    label = f"{evidence.hypothesis}: ratio {evidence.ratio:.2f} {'valid' if evidence.valid else 'invalid'}"
+    crops = []
+    for region in evidence.regions:  # one crop per predicted region: the panorama between them is empty
+        c0, c1, r0, r1 = np.round(region).astype(int)
+        pad = max((c1 - c0) // 2, 10)
+        crop = panel[max(r0 - pad, 0) : r1 + pad, max(c0 - pad, 0) : c1 + pad]
+        crops.append(cv2.resize(crop, (max(int(crop.shape[1] * height / max(crop.shape[0], 1)), 1), height)))
+    panel = np.hstack(crops) if crops else cv2.resize(panel, (height, height))
+    cv2.putText(panel, label, (8, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.6, CYAN, 1, cv2.LINE_AA)
+    return panel
+
+
+def measurement_overlay(frame: NDArray, camera: CameraModel, pallet: PalletType, detail: Any, out: Path) -> None:
+    """The frame with the matched face, beside the loaded and unloaded panoramas with their predicted
+    regions (yellow) and detected lines (green valid, red not)."""
+    gray = frame if frame.ndim == 2 else cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
+    view = cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR)
+    draw_face(view, camera, detail.measurement.pallet_in_camera, pallet, GREEN)
+    height = 720
+    view = cv2.resize(view, (int(view.shape[1] * height / view.shape[0]), height))
+    panels = [_panorama_panel(gray, camera, detail.evidence[name], height // 2) for name in ("loaded", "unloaded")]
+    width = max(p.shape[1] for p in panels)
+    column = np.vstack([cv2.copyMakeBorder(p, 0, 0, 0, width - p.shape[1], cv2.BORDER_CONSTANT) for p in panels])
+    m = detail.measurement.pallet_in_fork.to_dict()
+    text = (
+        f"x {m['x_mm']:.1f} mm  y {m['y_mm']:.1f} mm  z {m['z_mm']:.1f} mm  pitch {m['pitch_deg']:.2f} deg  "
+        f"yaw {m['yaw_deg']:.2f} deg  ({'loaded' if detail.measurement.loaded else 'unloaded'})"
+    )
+    canvas = np.hstack([view, column[:height]])
+    cv2.putText(canvas, text, (10, height - 14), cv2.FONT_HERSHEY_SIMPLEX, 0.6, CYAN, 1, cv2.LINE_AA)
+    write_png(out, canvas)
+
+
+def write_png(path: Path, image: NDArray) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(path), image):
+        raise OSError(f"{path}: could not write the PNG")
