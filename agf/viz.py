@@ -115,3 +115,19 @@ def write_png(path: Path, image: NDArray) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     if not cv2.imwrite(str(path), image):
         raise OSError(f"{path}: could not write the PNG")
+
+
+def calibration_overlay(frame: NDArray, camera: CameraModel, fit: Any, out: Path) -> None:
+    """The panel image with the fitted panel edges (green) and each edge point's residual (red, x10)."""
+    view = cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR) if frame.ndim == 2 else frame.copy()
+    for (u, v), r in zip(fit.points_px, fit.offsets_px, strict=True):
+        cv2.circle(view, (int(round(u)), int(round(v))), 1, GREEN, -1)
+        if abs(r) > 0.3:
+            cv2.circle(view, (int(round(u)), int(round(v))), int(min(abs(r) * 10, 20)), RED, 1)
+    d = fit.camera_in_fork.to_dict()
+    text = (
+        f"camera_in_fork x {d['x_mm']:.1f} y {d['y_mm']:.1f} z {d['z_mm']:.1f} mm  roll {d['roll_deg']:.2f} "
+        f"pitch {d['pitch_deg']:.2f} yaw {d['yaw_deg']:.2f} deg  residual {fit.residual_px:.2f} px"
+    )
+    cv2.putText(view, text, (20, view.shape[0] - 30), cv2.FONT_HERSHEY_SIMPLEX, 1.0, CYAN, 2, cv2.LINE_AA)
+    write_png(out, view)
