@@ -1,0 +1,645 @@
+"""One fork axis over CANopen CiA 402: canopen's ``BaseNode402`` behind the :class:`agf.axis.Axis` protocol.
+
+:class:`Cia402Network` owns what exists once per bus: the ``canopen.Network``, the SYNC producer at
+the control cycle, the master's heartbeat and the watchdog that supervises every drive's heartbeat
+and TPDO stream. It creates the axes (:class:`Cia402Axis`), one per drive.
+
+Start-up of one axis, all over SDO while the drive is PRE-OPERATIONAL: producer heartbeat (0x1017),
+consumer heartbeat of the master (0x1016), cycle period (0x1006), the PDO mapping (RPDO1 controlword +
+target position, TPDO1 statusword + position actual, TPDO2 velocity actual + mode display + error
+code, all synchronous), the mode of operation (8, CSP, or 1, PP) checked on 0x6061, the drive's own
+limits (0x607D, 0x607F, 0x6081, 0x6083, 0x6084, 0x6085, 0x6065) from the configured SI limits; then
+NMT OPERATIONAL.
+
+canopen traps handled here (see issue 7): the master has no heartbeat-timeout callback (our watchdog
+thread), ``BaseNode402``'s state setter does not transmit a controlword mapped into a synchronous RPDO
+and ``reset_from_fault`` never confirms (we sequence the 402 transitions ourselves and check the
+statusword), and nothing inside a CAN callback blocks on SDO.
+"""
+
+from __future__ import annotations
+
+import configparser
+import io
+import logging
+import math
+import re
+import threading
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import can
+import canopen
+from canopen.emcy import EmcyError
+from canopen.nmt import NmtError
+from canopen.objectdictionary import ObjectDictionaryError
+from canopen.profiles.p402 import BaseNode402, State402
+from canopen.sdo.exceptions import SdoAbortedError, SdoError
+
+from agf.axis import Axis, AxisFeedback, AxisLimits, AxisState
+from agf.config import child, section_from_mapping, unit
+from agf.errors import ConfigError, DriveFault
+from drivers.can_bus import open_bus
+
+logger = logging.getLogger(__name__)
+
+DEFAULT_EDS = Path(__file__).resolve().parents[1] / "configs" / "eds" / "agf_axis.eds"
+
+#: EMCY error codes (CiA 301 / CiA 402) the drives of this project report, by name.
+EMCY_NAMES: dict[int, str] = {
+    0x1000: "generic error",
+    0x2310: "continuous over-current",
+    0x3210: "DC link over-voltage",
+    0x3220: "DC link under-voltage",
+    0x4310: "drive over-temperature",
+    0x5441: "enable input (safe torque off) open",
+    0x7121: "motor blocked",
+    0x7305: "position encoder fault",
+    0x8130: "master heartbeat lost (life guard / heartbeat error)",
+    0x8611: "following error",
+    0x8612: "limit switch reached",
+    0xFF00: "injected fault (simulation)",
+}
+
+MODES = {"csp": 8, "pp": 1}
+
+_STATUS_MASKS = {  # statusword -> collapsed axis state, order matters (fault bits first)
+    AxisState.FAULT: ((0x4F, 0x08), (0x4F, 0x0F)),
+    AxisState.ENABLED: ((0x6F, 0x27),),
+    AxisState.QUICK_STOP: ((0x6F, 0x07),),
+}
+
+
+def emcy_name(code: int) -> str:
+    """Human name of an EMCY error code: ours first, then CiA 301's error class."""
+    if code in EMCY_NAMES:
+        return EMCY_NAMES[code]
+    return EmcyError(code, 0, b"", 0.0).get_desc().lower() or "unknown error"
+
+
+def axis_state(statusword: int) -> AxisState:
+    """Collapse a CiA 402 statusword into an :class:`AxisState`."""
+    for state, masks in _STATUS_MASKS.items():
+        if any(statusword & mask == value for mask, value in masks):
+            return state
+    return AxisState.DISABLED
+
+
+# --------------------------------------------------------------------------------------------------
+# object dictionaries
+
+
+def load_object_dictionary(source: str | Path, node_id: int) -> canopen.ObjectDictionary:
+    """Import an EDS, tolerating what vendor tools often write and canopen refuses.
+
+    A DOMAIN object without ``DataType`` gets DOMAIN (0x000F) and a warning; a variable whose type
+    cannot be known is dropped with a warning. Anything else raises a :class:`ConfigError` naming
+    the file and the object.
+    """
+    path = Path(source)
+    if not path.is_file():
+        raise ConfigError(f"EDS file {path} not found")
+    try:
+        return canopen.import_od(str(path), node_id)
+    except (configparser.Error, ObjectDictionaryError, KeyError, ValueError) as exc:
+        logger.warning("%s: canopen refuses the EDS as it is (%s); importing it tolerantly", path, exc)
+    parser = configparser.RawConfigParser()
+    parser.optionxform = str  # EDS keys are case-sensitive for canopen
+    try:
+        parser.read_string(path.read_text(encoding="latin-1"))
+    except configparser.Error as exc:
+        raise ConfigError(f"EDS file {path}: not an INI file ({exc})") from exc
+    _repair_eds(parser, path)
+    text = io.StringIO()
+    parser.write(text)
+    text.seek(0)
+    text.name = str(path)  # import_od picks the format from the name
+    try:
+        return canopen.import_od(text, node_id)
+    except (configparser.Error, ObjectDictionaryError, KeyError, ValueError) as exc:
+        raise ConfigError(f"EDS file {path}: cannot import object {exc}") from exc
+
+
+def _repair_eds(parser: configparser.RawConfigParser, path: Path) -> None:
+    for section in parser.sections():
+        if not re.fullmatch(r"[0-9A-Fa-f]{4}(sub[0-9A-Fa-f]+)?", section):
+            continue
+        entry = parser[section]
+        object_type = int(entry.get("ObjectType", "0x7"), 0)
+        if "DataType" in entry or object_type not in (0x2, 0x7):
+            continue
+        if object_type == 0x2:
+            logger.warning("%s: object 0x%s (DOMAIN) has no DataType; using DOMAIN", path.name, section)
+            entry["DataType"] = "0x000F"
+            entry.setdefault("AccessType", "rw")
+        else:
+            logger.warning("%s: object 0x%s has no DataType; ignoring it", path.name, section)
+            parser.remove_section(section)
+
+
+# --------------------------------------------------------------------------------------------------
+# configuration
+
+
+@dataclass(frozen=True)
+class LinearDriveSection:
+    """One linear axis (lift, reach, side shift) in the ``drives.axes`` section; lengths in mm."""
+
+    node_id: int
+    counts_per_m: float
+    minimum: float = unit("mm")
+    maximum: float = unit("mm")
+    max_velocity: float = unit("mm_s")
+    max_acceleration: float = unit("mm_s2")
+    max_jerk: float = unit("mm_s3")
+    following_error: float = unit("mm", 0.05)
+    kind: Literal["linear"] = "linear"
+    eds: str | None = None
+    mode: Literal["csp", "pp"] = "csp"
+
+    @property
+    def counts_per_unit(self) -> float:
+        return self.counts_per_m
+
+
+@dataclass(frozen=True)
+class RotaryDriveSection:
+    """One rotary axis (tilt) in the ``drives.axes`` section; angles in degrees."""
+
+    node_id: int
+    counts_per_rad: float
+    minimum: float = unit("deg")
+    maximum: float = unit("deg")
+    max_velocity: float = unit("deg_s")
+    max_acceleration: float = unit("deg_s2")
+    max_jerk: float = unit("deg_s3")
+    following_error: float = unit("deg", math.radians(2.0))
+    kind: Literal["rotary"] = "rotary"
+    eds: str | None = None
+    mode: Literal["csp", "pp"] = "csp"
+
+    @property
+    def counts_per_unit(self) -> float:
+        return self.counts_per_rad
+
+
+@dataclass(frozen=True)
+class DriveSettings:
+    """One drive as the driver uses it: SI limits, scaling and where its EDS is."""
+
+    name: str
+    node_id: int
+    eds: Path
+    counts_per_unit: float
+    limits: AxisLimits
+    following_error: float
+    mode: Literal["csp", "pp"] = "csp"
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.node_id <= 127:
+            raise ValueError(f"node_id must be 1..127, got {self.node_id}")
+        if not (math.isfinite(self.counts_per_unit) and self.counts_per_unit != 0):
+            raise ValueError(f"counts per unit must be finite and non-zero, got {self.counts_per_unit}")
+        if not self.following_error > 0:
+            raise ValueError(f"following_error must be positive, got {self.following_error}")
+
+
+@dataclass(frozen=True)
+class NetworkSettings:
+    """What is shared by all drives of one bus (the ``drives`` section's top-level keys)."""
+
+    cycle: float = unit("ms", 0.010)
+    heartbeat: float = unit("ms", 0.100)
+    master_node_id: int = 127
+    simulated: bool = False
+
+    def __post_init__(self) -> None:
+        if not 0.001 <= self.cycle <= 0.1:
+            raise ValueError(f"cycle_ms must be within 1..100 ms, got {self.cycle * 1e3} ms")
+        if not 0.01 <= self.heartbeat <= 10.0:
+            raise ValueError(f"heartbeat_ms must be within 10..10000 ms, got {self.heartbeat * 1e3} ms")
+        if not 1 <= self.master_node_id <= 127:
+            raise ValueError(f"master_node_id must be 1..127, got {self.master_node_id}")
+
+
+def drive_settings_from_mapping(name: str, data: Any, where: str, base_dir: Path | None = None) -> DriveSettings:
+    """Parse one entry of ``drives.axes`` (``kind: linear`` in mm, ``kind: rotary`` in degrees)."""
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"{where}: expected a mapping, got {type(data).__name__}")
+    kind = data.get("kind", "linear")
+    sections = {"linear": LinearDriveSection, "rotary": RotaryDriveSection}
+    if kind not in sections:
+        raise ConfigError(f"{child(where, 'kind')}: expected one of {sorted(sections)}, got {kind!r}")
+    section = section_from_mapping(sections[kind], data, where, base_dir)
+    eds = DEFAULT_EDS if section.eds is None else Path(section.eds)
+    if not eds.is_absolute() and base_dir is not None:
+        eds = base_dir / eds
+    if not eds.is_file():
+        raise ConfigError(f"{child(where, 'eds')}: file {eds} does not exist")
+    try:
+        limits = AxisLimits(section.minimum, section.maximum, section.max_velocity,
+                            section.max_acceleration, section.max_jerk)
+        return DriveSettings(name, section.node_id, eds, section.counts_per_unit, limits,
+                             section.following_error, section.mode)
+    except ValueError as exc:
+        raise ConfigError(f"{where}: {exc}") from exc
+
+
+# --------------------------------------------------------------------------------------------------
+# network
+
+
+class Cia402Network:
+    """One CAN bus with its CiA 402 drives: canopen network, SYNC, master heartbeat, watchdog.
+
+    Parameters
+    ----------
+    bus : can.BusABC
+        An open python-can bus (see :func:`drivers.can_bus.open_bus`); closed by :meth:`close`.
+    settings : NetworkSettings
+        Cycle (SYNC period, s), heartbeat period (s) of master and drives, master node id.
+    """
+
+    def __init__(self, bus: can.BusABC, settings: NetworkSettings) -> None:
+        self.settings = settings
+        self.network = canopen.Network(bus)
+        self.network.NOTIFIER_CYCLE = 0.1  # how long closing waits for the receive thread
+        self.network.connect()
+        self.axes: dict[str, Cia402Axis] = {}
+        self.sim_drives: list[Any] = []  # simulated drives this network started (drives.simulated)
+        self._heartbeat_task: Any = None
+        self._sync_running = False
+        self._stop = threading.Event()
+        self._watchdog = threading.Thread(target=self._watch, name="cia402-watchdog", daemon=True)
+        self._watchdog.start()
+
+    def add_axis(self, drive: DriveSettings, timeout: float = 5.0) -> Cia402Axis:
+        """Configure drive ``drive`` over SDO, start it (NMT OPERATIONAL) and return its axis."""
+        if drive.name in self.axes:
+            raise ConfigError(f"drives: axis {drive.name!r} defined twice")
+        axis = Cia402Axis(self, drive, timeout)
+        self.axes[drive.name] = axis
+        return axis
+
+    def start(self) -> None:
+        """Start the master heartbeat and the SYNC producer (once all axes are configured)."""
+        if self._heartbeat_task is None:
+            self._heartbeat_task = self.network.send_periodic(
+                0x700 + self.settings.master_node_id, [0x05], self.settings.heartbeat)
+        if not self._sync_running:
+            self.network.sync.start(self.settings.cycle)
+            self._sync_running = True
+
+    def stop_master_heartbeat(self) -> None:
+        """Stop sending the master's heartbeat (the drives will then quick-stop): for tests and shutdown."""
+        if self._heartbeat_task is not None:
+            self._heartbeat_task.stop()
+            self._heartbeat_task = None
+
+    def close(self) -> None:
+        """Disable every axis, stop SYNC and heartbeat, release the bus and simulated drives.
+
+        The drives stop watching the master's heartbeat first, so an orderly shutdown leaves them
+        disabled rather than faulted.
+        """
+        self._stop.set()
+        for axis in self.axes.values():
+            axis.close()
+        self.network.sync.stop()
+        self._sync_running = False
+        self.stop_master_heartbeat()
+        self._watchdog.join(timeout=1.0)
+        self.network.disconnect()
+        for drive in self.sim_drives:
+            drive.close()
+
+    def _watch(self) -> None:
+        # canopen gives the master no heartbeat-timeout callback: poll every quarter heartbeat
+        # period, so a silent drive is reported within 2.5 + 0.25 periods (< 3).
+        period = min(self.settings.heartbeat / 4, 0.05)
+        while not self._stop.wait(period):
+            now = time.monotonic()
+            for axis in list(self.axes.values()):
+                axis._check_alive(now)
+
+
+# --------------------------------------------------------------------------------------------------
+# axis
+
+
+class Cia402Axis(Axis):
+    """One CiA 402 drive as an :class:`Axis`; created by :meth:`Cia402Network.add_axis`."""
+
+    def __init__(self, net: Cia402Network, drive: DriveSettings, timeout: float) -> None:
+        super().__init__(drive.name, drive.limits)
+        self.drive = drive
+        self._net = net
+        self._scale = drive.counts_per_unit
+        self._fault: str | None = None
+        self._last_heartbeat: float | None = None
+        self._last_tpdo: float | None = None
+        self._supervised = False
+        self._pp_pending = False
+        self._rpdo_lock = threading.Lock()  # RPDO1 is written by the caller and by the TPDO callback (PP)
+        self._feedback_changed = threading.Condition()
+        od = load_object_dictionary(drive.eds, drive.node_id)
+        self.node = BaseNode402(drive.node_id, od)
+        net.network.add_node(self.node)
+        self.node.nmt.add_heartbeat_callback(self._on_heartbeat)
+        self.node.emcy.add_callback(self._on_emcy)
+        try:
+            self._configure(timeout)
+        except (SdoError, NmtError) as exc:
+            raise DriveFault(f"axis {self.name} (node {drive.node_id}): start-up failed: {exc}") from exc
+        self._supervised = True
+
+    # -- start-up (SDO, PRE-OPERATIONAL) -----------------------------------------------------------
+    def _configure(self, timeout: float) -> None:
+        node, settings = self.node, self._net.settings
+        node.nmt.state = "PRE-OPERATIONAL"
+        node.sdo.RESPONSE_TIMEOUT = max(0.3, min(timeout, 1.0))
+        device_type = node.sdo[0x1000].raw
+        if device_type & 0xFFFF != 402:
+            logger.warning("node %d: device type 0x%08X is not a CiA 402 drive", node.id, device_type)
+        node.sdo[0x1017].raw = round(settings.heartbeat * 1000)
+        node.nmt.wait_for_heartbeat(timeout)
+        self._write_optional(0x1016, 1, settings.master_node_id << 16 | round(3 * settings.heartbeat * 1000))
+        self._write_optional(0x1006, 0, round(settings.cycle * 1e6))
+        self._map_pdos()
+        self._write_drive_limits()
+        self._set_mode(MODES[self.drive.mode], timeout)
+        node.tpdo[1].add_callback(self._on_tpdo)
+        node.nmt.state = "OPERATIONAL"
+        self._last_tpdo = None
+
+    def _write_optional(self, index: int, subindex: int, value: int) -> None:
+        od = self.node.object_dictionary
+        if index not in od:
+            logger.warning("axis %s: object 0x%04X not in the EDS; not written", self.name, index)
+            return
+        is_variable = isinstance(od[index], canopen.objectdictionary.ODVariable)
+        entry = od[index] if is_variable else od[index][subindex]
+        if not entry.writable:
+            logger.warning("axis %s: object 0x%04X:%d is read-only; not written", self.name, index, subindex)
+            return
+        low, high = _type_range(entry)
+        low = low if entry.min is None else max(low, entry.min)
+        high = high if entry.max is None else min(high, entry.max)
+        if not low <= value <= high:
+            logger.warning("axis %s: 0x%04X:%d = %d outside the EDS range [%d, %d]; clamped",
+                           self.name, index, subindex, value, low, high)
+        variable = self.node.sdo[index] if is_variable else self.node.sdo[index][subindex]
+        variable.raw = int(min(max(value, low), high))
+
+    def _read_optional(self, index: int) -> int | None:
+        if index not in self.node.object_dictionary:
+            return None
+        try:
+            return self.node.sdo[index].raw
+        except SdoAbortedError as exc:
+            logger.warning("axis %s: cannot read 0x%04X (%s); not checked", self.name, index, exc)
+            return None
+
+    def _map_pdos(self) -> None:
+        node = self.node
+        node.rpdo.read()
+        node.tpdo.read()
+        layout = {  # (PDO map, objects) -- all synchronous: RPDO applied, TPDO sent, on each SYNC
+            node.rpdo[1]: (0x6040, 0x607A),
+            node.tpdo[1]: (0x6041, 0x6064),
+            node.tpdo[2]: tuple(i for i in (0x606C, 0x6061, 0x603F) if i in node.object_dictionary),
+        }
+        for maps in (node.rpdo, node.tpdo):
+            for number, pdo in maps.map.items():
+                if number > 4:
+                    continue
+                objects = layout.get(pdo)
+                pdo.enabled = objects is not None
+                if objects is None:
+                    continue
+                pdo.clear()
+                for index in objects:
+                    pdo.add_variable(index)
+                pdo.trans_type = 1
+                pdo.cob_id = pdo.cob_id or ((0x200 if maps is node.rpdo else 0x180) + 0x100 * (number - 1) + node.id)
+        node.rpdo.save()
+        node.tpdo.save()
+        node.setup_402_state_machine(read_pdos=False)
+
+    def _write_drive_limits(self) -> None:
+        limits, scale = self.limits, abs(self._scale)
+        low, high = sorted((limits.minimum * self._scale, limits.maximum * self._scale))
+        self._write_optional(0x607D, 1, math.floor(low))
+        self._write_optional(0x607D, 2, math.ceil(high))
+        self._write_optional(0x607F, 0, math.ceil(limits.max_velocity * scale))
+        self._write_optional(0x6081, 0, math.ceil(limits.max_velocity * scale))
+        self._write_optional(0x6083, 0, math.ceil(limits.max_acceleration * scale))
+        self._write_optional(0x6084, 0, math.ceil(limits.max_acceleration * scale))
+        self._write_optional(0x6085, 0, math.ceil(2 * limits.max_acceleration * scale))
+        self._write_optional(0x60C5, 0, math.ceil(limits.max_acceleration * scale))
+        self._write_optional(0x6065, 0, math.ceil(self.drive.following_error * scale))
+        self._write_optional(0x605A, 0, 6)  # quick stop: ramp down, then hold in QUICK STOP ACTIVE
+
+    def _set_mode(self, mode: int, timeout: float) -> None:
+        # BaseNode402.op_mode's setter only logs a failed switch: write, then read back 0x6061 ourselves
+        supported = self._read_optional(0x6502)
+        if supported is not None:
+            if not supported >> (mode - 1) & 1:
+                raise DriveFault(f"axis {self.name}: drive does not support mode {mode} (0x6502 = 0x{supported:X})")
+        self.node.sdo[0x6060].raw = mode
+        deadline = time.monotonic() + timeout
+        while self.node.sdo[0x6061].raw != mode:
+            if time.monotonic() > deadline:
+                raise DriveFault(f"axis {self.name}: drive did not switch to mode {mode} (0x6061)")
+            time.sleep(0.01)
+
+    # -- Axis back end -------------------------------------------------------------------------------
+    def _enable(self, timeout: float) -> None:
+        statusword = self._fresh_statusword(timeout)
+        if axis_state(statusword) is AxisState.FAULT:
+            raise DriveFault(f"axis {self.name}: cannot enable, drive in fault ({self._fault or 'unknown'})")
+        self._write_target(self.node.tpdo_values.get(0x6064, 0))  # hold the actual position
+        path = {
+            "SWITCH ON DISABLED": ("READY TO SWITCH ON", "SWITCHED ON", "OPERATION ENABLED"),
+            "READY TO SWITCH ON": ("SWITCHED ON", "OPERATION ENABLED"),
+            "SWITCHED ON": ("OPERATION ENABLED",),
+            "QUICK STOP ACTIVE": ("OPERATION ENABLED",),
+            "OPERATION ENABLED": (),
+        }
+        current = self.node.state
+        if current not in path:
+            raise DriveFault(f"axis {self.name}: cannot enable from drive state {current}")
+        for state in path[current]:
+            self._transition(State402.CW_COMMANDS_CODE[state], state, timeout)
+        self._fault = None
+
+    def _disable(self) -> None:
+        self._controlword(State402.CW_DISABLE_VOLTAGE)
+
+    def _quick_stop(self) -> None:
+        self._controlword(State402.CW_QUICK_STOP)  # transition 11, not halt (bit 8)
+
+    def _fault_reset(self, timeout: float) -> None:
+        # reset_from_fault in canopen never confirms: raise bit 7 on a rising edge and check ourselves
+        if axis_state(self._fresh_statusword(timeout)) is not AxisState.FAULT:
+            return
+        self._controlword(State402.CW_DISABLE_VOLTAGE)  # bit 7 low first, so the next write is an edge
+        for _ in range(2):  # a TPDO already on its way may predate that write: wait for the one after
+            self._fresh_statusword(timeout)
+        self._transition(State402.CW_SWITCH_ON_DISABLED, "SWITCH ON DISABLED", timeout)
+        self._fault = None
+
+    def _send_setpoint(self, position: float) -> None:
+        if self._fault is not None:
+            raise DriveFault(f"axis {self.name}: in fault ({self._fault}); setpoint refused")
+        self._write_target(round(position * self._scale))
+        if self.drive.mode == "pp":
+            # bit 4 (new set-point) must be seen rising at a SYNC: it stays high until the drive
+            # acknowledges (statusword bit 12), then _on_tpdo drops it; bit 5 = change immediately
+            self._pp_pending = True
+            self._controlword(State402.CW_OPERATION_ENABLED | 0x0030)
+        else:
+            with self._rpdo_lock:
+                self.node.rpdo[1].transmit()
+
+    def _feedback(self) -> AxisFeedback:
+        values = self.node.tpdo_values
+        state = AxisState.FAULT if self._fault else axis_state(values.get(0x6041, 0))
+        return AxisFeedback(
+            position=values.get(0x6064, 0) / self._scale,
+            velocity=values.get(0x606C, 0) / self._scale,
+            state=state,
+            timestamp=self._last_tpdo if self._last_tpdo is not None else math.nan,
+            fault=self._fault,
+        )
+
+    def wait_for_feedback(self, timeout: float = 1.0) -> AxisFeedback:
+        """Block until the next TPDO1 arrives (one control cycle) and return the feedback."""
+        with self._feedback_changed:
+            self._feedback_changed.wait(timeout)
+        return self._feedback()
+
+    def _close(self) -> None:
+        silent = self._fault is not None and "heartbeat lost" in self._fault
+        self._supervised = False
+        if silent:
+            return
+        try:
+            self._disable()
+            for _ in range(2):  # the drive applies it at the next SYNC; its TPDO after that confirms
+                self.node.tpdo[1].wait_for_reception(5 * self._net.settings.cycle)
+            self._write_optional(0x1016, 1, 0)
+        except (can.CanError, SdoError) as exc:
+            logger.warning("axis %s: orderly shutdown incomplete: %s", self.name, exc)
+
+    # -- helpers -----------------------------------------------------------------------------------
+    def _write_target(self, counts: int) -> None:
+        with self._rpdo_lock:
+            self.node.rpdo[1][0x607A].raw = int(counts)
+
+    def _controlword(self, value: int) -> None:
+        # the controlword shares RPDO1 with the target; the drive applies it at the next SYNC
+        with self._rpdo_lock:
+            self.node.rpdo[1][0x6040].raw = value
+            self.node.rpdo[1].transmit()
+
+    def _transition(self, controlword: int, state: str, timeout: float) -> None:
+        self._controlword(controlword)
+        deadline = time.monotonic() + timeout
+        while self.node.state != state:
+            if time.monotonic() > deadline:
+                raise DriveFault(f"axis {self.name}: drive did not reach {state} (it is {self.node.state})")
+            self._fresh_statusword(timeout)
+
+    def _fresh_statusword(self, timeout: float) -> int:
+        if self.node.tpdo[1].wait_for_reception(timeout) is None:
+            raise DriveFault(f"axis {self.name}: no statusword from node {self.node.id} within {timeout} s")
+        return self.node.statusword
+
+    # -- callbacks (from the CAN notifier thread: never block, never SDO) -----------------------
+    def _on_heartbeat(self, state: int) -> None:
+        self._last_heartbeat = time.monotonic()
+
+    def _on_tpdo(self, pdo: Any) -> None:
+        self._last_tpdo = time.monotonic()
+        if self._pp_pending and self.node.tpdo_values.get(0x6041, 0) & 0x1000:
+            self._pp_pending = False
+            self._controlword(State402.CW_OPERATION_ENABLED)
+        with self._feedback_changed:
+            self._feedback_changed.notify_all()
+
+    def _on_emcy(self, emcy: EmcyError) -> None:
+        if emcy.code & 0xFF00 == 0:
+            return  # error reset
+        self._raise_fault(f"EMCY 0x{emcy.code:04X} {emcy_name(emcy.code)}")
+
+    def _check_alive(self, now: float) -> None:
+        if not self._supervised or self._fault is not None:
+            return
+        heartbeat = self._net.settings.heartbeat
+        if self._last_heartbeat is not None and now - self._last_heartbeat > 2.5 * heartbeat:
+            self._raise_fault(f"heartbeat lost (silent for {now - self._last_heartbeat:.3f} s)")
+            return
+        tpdo_timeout = max(10 * self._net.settings.cycle, 2.5 * heartbeat)
+        if self._last_tpdo is not None and now - self._last_tpdo > tpdo_timeout:
+            self._raise_fault(f"TPDO feedback lost (none for {now - self._last_tpdo:.3f} s)")
+
+    def _raise_fault(self, reason: str) -> None:
+        self._fault = reason
+        fault = DriveFault(f"axis {self.name} (node {self.node.id}): {reason}")
+        logger.warning("%s", fault)
+        self._report_fault(fault)
+
+
+def _type_range(entry: canopen.objectdictionary.ODVariable) -> tuple[int, int]:
+    bits = len(entry)
+    if entry.data_type in canopen.objectdictionary.SIGNED_TYPES:
+        return -(1 << (bits - 1)), (1 << (bits - 1)) - 1
+    return 0, (1 << bits) - 1
+
+
+# --------------------------------------------------------------------------------------------------
+# factory
+
+
+def axes_from_config(
+    drives_mapping: Any, bus_mapping: Any, where: str, base_dir: Path | None = None, timeout: float = 5.0
+) -> tuple[Cia402Network, dict[str, Axis]]:
+    """Open the bus, start the drives of the ``drives`` section and return the network and its axes.
+
+    With ``drives.simulated: true`` a simulated drive (``drivers.sim.drive``) is started in this
+    process for every axis, on its own connection to the same bus, before the master configures it.
+    """
+    if not isinstance(drives_mapping, Mapping):
+        raise ConfigError(f"{where} drives: expected a mapping, got {type(drives_mapping).__name__}")
+    axes_data = drives_mapping.get("axes")
+    if not isinstance(axes_data, Mapping) or not axes_data:
+        raise ConfigError(f"{child(where + ' drives', 'axes')}: expected a mapping of axis name -> drive")
+    top = {k: v for k, v in drives_mapping.items() if k != "axes"}
+    settings = section_from_mapping(NetworkSettings, top, f"{where} drives", base_dir)
+    drives = [drive_settings_from_mapping(str(name), data, child(f"{where} drives.axes", name), base_dir)
+              for name, data in axes_data.items()]
+    ids = [d.node_id for d in drives] + [settings.master_node_id]
+    if len(set(ids)) != len(ids):
+        raise ConfigError(f"{where} drives: node ids must be unique (master included), got {ids}")
+    sim_drives = _start_simulated(drives, bus_mapping, settings, where) if settings.simulated else []
+    net = Cia402Network(open_bus(bus_mapping, f"{where} bus"), settings)
+    net.sim_drives = sim_drives
+    try:
+        for drive in drives:
+            net.add_axis(drive, timeout)
+        net.start()
+    except Exception:
+        net.close()
+        raise
+    return net, dict(net.axes)
+
+
+def _start_simulated(drives: list[DriveSettings], bus_mapping: Any, settings: NetworkSettings, where: str) -> list:
+    from drivers.sim.drive import SimDrive  # only the simulated world needs it
+
+    return [SimDrive.open(d.node_id, open_bus(bus_mapping, f"{where} bus"), eds=d.eds, cycle=settings.cycle)
+            for d in drives]
