@@ -48,6 +48,7 @@ class PoseSearchConfig:
     fine_pixel: float = 0.005  # second scan, around each coarse candidate
     fine_level: int = 1
     fine_window: tuple[float, float, float] = (0.12, 0.04, 0.12)  # m around a coarse candidate (x, y, z)
+    fine_scale_step_px: float = 3.0  # template width change between scales of the fine scan
     min_group_inliers: float = 0.6  # fraction of each edge group (top, bottom, sides) that must fit
     yaw_step: float = math.radians(4.0)
     prior_window: float = 0.3  # m around a prior in x, y, z
@@ -244,7 +245,7 @@ def _scan(
         view = _view(level_image, camera, _key(R_cv), window, f, level)
         step = scale_step_px / face.width
         for scale in np.arange(f / np.max(origins_v[:, 0]), f / np.min(origins_v[:, 0]) + step / 2, step):
-            found += _peaks(view, face, scale, f, window, R_cv, fork_in_camera, yaw, box)
+            found += _peaks(view, face, scale, f, window, R_cv, camera_in_fork, yaw, box)
     found.sort(key=lambda c: -c[0])
     return _distinct(found, face, camera_in_fork.translation)
 
@@ -255,7 +256,9 @@ def _rescan(fine_image, camera, camera_in_fork, face, params: _Params, config: P
     centre = np.array([params.x, params.y, params.z])
     yaws = (params.yaw - config.yaw_step / 2, params.yaw, params.yaw + config.yaw_step / 2)
     box = _Box(centre - window, centre + window, yaws, params.pitch)
-    found = _scan(fine_image, config.fine_level, config.fine_pixel, 2.0, camera, camera_in_fork, face, box)
+    found = _scan(
+        fine_image, config.fine_level, config.fine_pixel, config.fine_scale_step_px, camera, camera_in_fork, face, box
+    )
     return found[0] if found else None
 
 
@@ -292,7 +295,7 @@ def _view_maps(camera: CameraModel, R_key: tuple, window: tuple, f: float, lvl: 
     return pixels[:, 0].reshape(shape).astype(np.float32), pixels[:, 1].reshape(shape).astype(np.float32)
 
 
-def _peaks(view, face, scale, f, window, R_cv, fork_in_camera, yaw, box) -> list[tuple[float, _Params]]:
+def _peaks(view, face, scale, f, window, R_cv, camera_in_fork, yaw, box) -> list[tuple[float, _Params]]:
     pixel = 1.0 / scale
     template, ys, zs = face.raster(pixel)
     if template.shape[0] < 3 or template.shape[0] >= view.shape[0] or template.shape[1] >= view.shape[1]:
@@ -310,7 +313,7 @@ def _peaks(view, face, scale, f, window, R_cv, fork_in_camera, yaw, box) -> list
         col_c = c + (template.shape[1] - 1) / 2 + window[0]
         row_c = r + (template.shape[0] - 1) / 2 + window[1]
         origin_v = np.array([depth, -col_c * depth / f - y_mid, -row_c * depth / f - z_mid])
-        x, y, z = fork_in_camera.inverse().apply(R_cv @ origin_v)
+        x, y, z = camera_in_fork.apply(R_cv @ origin_v)
         if np.all((np.array([x, y, z]) >= box.low - 0.05) & (np.array([x, y, z]) <= box.high + 0.05)):
             out.append((float(response[r, c]), _Params(x, y, z, yaw, box.pitch)))
     return out

@@ -1,0 +1,168 @@
+"""``agf bench`` cases that need rendered frames: pose, measurement, calibration, rendering itself.
+
+Renders are cached under the system temp directory, keyed by the scene file and the renderer's source,
+so a second bench run measures the vision and not the renderer.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import statistics
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from agf.bench import bench_case, time_calls, timing_summary
+from agf.camera import load_camera
+from agf.config import load_calibration, load_config
+from agf.errors import MeasurementError
+from agf.geometry import Transform
+from agf.pallets import load_pallets
+from agf.paths import DEFAULT_CONFIG, repo_path
+from agf.scene import Scene, load_scene
+from agf.vision.calibration import Panel, fit_panel
+from agf.vision.face_model import face_model_from_pallet
+from agf.vision.measure import measure_pallet
+from agf.vision.pallet_pose import estimate_pallet_pose
+from drivers.sim import raycast, render
+
+SCENES = repo_path("tests/data/scenes")
+QUICK = ("paper/unloaded-low-flat", "paper/loaded-middle-front-up", "paper/unloaded-high-rear-up")
+
+
+def rendered(scene: Scene, key: str) -> np.ndarray:
+    """The frame of ``scene``, from the cache when the scene and renderer are unchanged."""
+    source = Path(render.__file__).read_bytes() + Path(raycast.__file__).read_bytes() + repr(scene).encode()
+    path = (
+        Path(tempfile.gettempdir())
+        / "agf-renders"
+        / f"{key.replace('/', '-')}-{hashlib.sha1(source).hexdigest()[:12]}.png"
+    )
+    if not path.exists():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        cv2.imwrite(str(path), render.render(scene)[0])
+    return cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+
+
+def _keys(quick: bool) -> list[str]:
+    if quick:
+        return list(QUICK)
+    return [
+        f"{p.parent.name}/{p.stem}"
+        for d in ("paper", "robust")
+        for p in sorted((SCENES / d).glob("*.yaml"))
+        if "shared/data" not in p.read_text() or repo_path("../shared/data").is_dir()
+    ]
+
+
+@bench_case("render.frame_s", "vision_ms")
+def render_frame(quick: bool) -> dict[str, Any]:
+    """One 1920 x 1920 frame, 4 samples on every surface boundary (budget 5 s)."""
+    scene = load_scene(SCENES / "paper/loaded-low-flat.yaml")
+    samples = time_calls(lambda: render.render(scene), repeats=1 if quick else 3, warmup=0)
+    return timing_summary(samples, scale=1.0)
+
+
+@bench_case("pose.ms", "vision_ms")
+def pose_ms(quick: bool) -> dict[str, Any]:
+    """Pallet pose with a prior (+-300 mm, +-10 deg approach knowledge), 1920 x 1920 (budget 100 ms)."""
+    config = load_config(DEFAULT_CONFIG)
+    scene = load_scene(SCENES / "paper/unloaded-middle-flat.yaml")
+    image = rendered(scene, "paper/unloaded-middle-flat")
+    camera = load_camera(scene.camera)
+    face = face_model_from_pallet(load_pallets(config.vision.pallets)[scene.pallet.type])
+    truth = scene.pallet.in_fork
+    prior = Transform.from_euler(*(truth.translation + [0.1, -0.08, 0.06]), 0.0, truth.euler[1], 0.05)
+    samples = time_calls(
+        lambda: estimate_pallet_pose(
+            image, camera, scene.camera_in_fork, face, config.vision.search, prior=prior, forks=config.forks
+        ),
+        repeats=3 if quick else 10,
+    )
+    return timing_summary(samples)
+
+
+@bench_case("measure", "accuracy")
+def measure_accuracy(quick: bool) -> dict[str, Any]:
+    """Pose and pitch on the paper and robustness scenes: errors, detection rate, wrong accepts, timing."""
+    config = load_config(DEFAULT_CONFIG)
+    catalogue = load_pallets(config.vision.pallets)
+    errors: dict[str, list[float]] = {"x_mm": [], "y_mm": [], "z_mm": [], "pitch_deg": [], "yaw_deg": []}
+    timing: dict[str, list[float]] = {}
+    refused, wrong, measured = [], [], 0
+    for key in _keys(quick):
+        scene = load_scene(SCENES / f"{key}.yaml")
+        image = rendered(scene, key)
+        try:
+            detail = measure_pallet(
+                image,
+                load_camera(scene.camera),
+                scene.camera_in_fork,
+                catalogue[scene.pallet.type],
+                config.vision.search,
+                forks=config.forks,
+            )
+        except MeasurementError as exc:
+            refused.append(f"{key}: {exc}")
+            continue
+        measured += 1
+        est, gt = detail.measurement.pallet_in_fork.to_dict(), scene.pallet.in_fork.to_dict()
+        e = {k: est[k] - gt[k] for k in errors}
+        for k, v in e.items():
+            errors[k].append(abs(v))
+        for stage, ms in detail.measurement.timing_ms.items():
+            timing.setdefault(stage, []).append(ms)
+        if (
+            abs(e["x_mm"]) > 10
+            or abs(e["z_mm"]) > 5
+            or abs(e["pitch_deg"]) > 0.1
+            or detail.measurement.loaded != scene.loaded
+        ):
+            wrong.append(key)
+    total = measured + len(refused)
+    return {
+        "scenes": total,
+        "detection_rate": measured / total if total else 0.0,
+        "wrong_accepts": len(wrong),
+        "wrong": wrong,
+        "refused": refused,
+        "median": {k: statistics.median(v) for k, v in errors.items() if v},
+        "max": {k: max(v) for k, v in errors.items() if v},
+        "timing_ms_median": {k: statistics.median(v) for k, v in timing.items()},
+    }
+
+
+@bench_case("calibrate", "accuracy")
+def calibrate_accuracy(quick: bool) -> dict[str, Any]:
+    """Panel calibration with mount errors up to 20 mm / 3 deg: worst errors, and the shift-free bias."""
+    config = load_config(DEFAULT_CONFIG)
+    nominal = load_calibration(config.vision.calibration)
+    base = load_scene(SCENES / "panel.yaml")
+    camera = load_camera(base.camera)
+    panel = Panel(*base.panel.size, base.panel.thickness)
+    mm, deg, bias, ms = [], [], [], []
+    for seed in range(2 if quick else 6):
+        d = np.random.default_rng(seed).uniform(-1, 1, 6) * np.r_[0.02, 0.02, 0.02, np.radians([3, 3, 3])]
+        truth = Transform.from_euler(*(nominal.translation + d[:3]), d[3], d[4], d[5])
+        scene = dataclasses.replace(base, camera_in_fork=truth, seed=seed)
+        image = rendered(scene, f"panel-{seed}")
+        start = time.perf_counter()
+        fit = fit_panel(image, camera, panel, config.forks, nominal)
+        ms.append((time.perf_counter() - start) * 1e3)
+        naive = fit_panel(image, camera.without_viewpoint_shift(), panel, config.forks, nominal)
+        e, t = fit.camera_in_fork.to_dict(), truth.to_dict()
+        mm.append(max(abs(e[k] - t[k]) for k in ("x_mm", "y_mm", "z_mm")))
+        deg.append(max(abs(e[k] - t[k]) for k in ("roll_deg", "pitch_deg", "yaw_deg")))
+        bias.append(naive.camera_in_fork.to_dict()["z_mm"] - t["z_mm"])
+    return {
+        "mounts": len(mm),
+        "max_error_mm": max(mm),
+        "max_error_deg": max(deg),
+        "without_shift_z_bias_mm": statistics.median(bias),
+        "calibrate_ms": timing_summary([m / 1e3 for m in ms]),
+    }
