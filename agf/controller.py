@@ -1,0 +1,301 @@
+"""The state machine that runs one pick (DESIGN.md's data flow), on python-statemachine.
+
+python-statemachine was chosen over ``transitions`` because it checks the machine when the class is
+defined (unreachable states are an error, not a runtime surprise), queues events sent from callbacks,
+and draws the diagram as Mermaid without Graphviz (``docs/controller.md`` is generated from this class).
+
+Events come from one thread, the one calling :meth:`PickController.run`; the drives' fault callbacks
+and an operator stop only set a flag that the loop checks every control cycle. Any fault, lost frame,
+refused measurement or plan, timeout or operator stop ends in quick stop of every axis and the FAULT
+state with the reason; only an explicit :meth:`PickController.reset` leaves it (ISO 3691-4: no
+automatic restart after an emergency stop).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+from statemachine import State, StateMachine
+
+from agf.axis import Axis, AxisState
+from agf.errors import AgfError, DriveFault
+from agf.frames import Frame, FrameSource
+from agf.measurement import PalletMeasurement
+
+
+class PickMachine(StateMachine):
+    """States and transitions of one pick."""
+
+    idle = State(initial=True)
+    connecting = State()
+    acquiring = State()
+    measuring = State()
+    planning = State()
+    aligning = State()
+    verifying = State()
+    inserting = State()
+    done = State()
+    fault = State()
+
+    start = idle.to(connecting)
+    connected = connecting.to(acquiring)
+    acquired = acquiring.to(measuring)
+    measured = measuring.to(planning)
+    planned = planning.to(aligning)
+    aligned = aligning.to(verifying)
+    verified = verifying.to(inserting)
+    replan = verifying.to(planning)
+    inserted = inserting.to(done)
+    abort = (
+        connecting.to(fault)
+        | acquiring.to(fault)
+        | measuring.to(fault)
+        | planning.to(fault)
+        | aligning.to(fault)
+        | verifying.to(fault)
+        | inserting.to(fault)
+        | idle.to(fault)
+    )
+    reset = fault.to(idle) | done.to(idle)
+
+
+def controller_diagram() -> str:
+    """The Mermaid source of :class:`PickMachine`'s diagram."""
+    from statemachine.contrib.diagram import MermaidGraphMachine
+
+    return MermaidGraphMachine(PickMachine)()
+
+
+class Motion(Protocol):
+    """A planned motion: axis positions (m, rad) at time t (s) from its start, and its duration."""
+
+    duration: float
+
+    def at(self, t: float) -> Mapping[str, float]: ...
+
+
+class Planner(Protocol):
+    """What the controller needs from kinematics, insertion and motion planning."""
+
+    def plan(self, measurement: PalletMeasurement, axes_now: Mapping[str, float]) -> Any:
+        """An insertion plan with ``safe``, ``reason``, ``align`` and ``insert`` targets (axis name -> value)."""
+
+    def align_motion(self, axes_now: Mapping[str, float], plan: Any) -> Motion: ...
+
+    def insert_motion(self, axes_now: Mapping[str, float], plan: Any) -> Motion: ...
+
+    def verify(self, measurement: PalletMeasurement, plan: Any) -> str | None:
+        """None when the re-measured pallet is where the aligned forks expect it, else why not."""
+
+
+@dataclass(frozen=True)
+class ControllerConfig:
+    """Cycle and per-state timeouts (s), and how close an axis must come to its target (m or rad)."""
+
+    cycle: float = 0.01
+    timeouts: Mapping[str, float] = field(
+        default_factory=lambda: {
+            "connecting": 10.0,
+            "acquiring": 5.0,
+            "measuring": 10.0,
+            "planning": 2.0,
+            "aligning": 60.0,
+            "verifying": 20.0,
+            "inserting": 60.0,
+        }
+    )
+    arrive_tolerance: float = 0.002
+    replans: int = 1
+
+
+@dataclass
+class PickResult:
+    """How a pick ended: ``ok`` only in DONE; otherwise the FAULT reason. ``log`` holds one row per cycle."""
+
+    ok: bool
+    state: str
+    reason: str | None
+    measurements: list[PalletMeasurement]
+    plan: Any
+    durations: dict[str, float]
+    log: list[dict[str, Any]]
+
+
+class PickController:
+    """Runs :class:`PickMachine` over axes, a frame source, a measurement function and a planner."""
+
+    def __init__(
+        self,
+        axes: Mapping[str, Axis],
+        frames: FrameSource,
+        measure: Callable[[Frame, PalletMeasurement | None], PalletMeasurement],
+        planner: Planner,
+        config: ControllerConfig = ControllerConfig(),
+        on_cycle: Callable[[Mapping[str, float]], None] | None = None,
+        progress: Callable[[str], None] | None = None,
+    ) -> None:
+        self.axes, self.frames, self.measure, self.planner = axes, frames, measure, planner
+        self.config, self.on_cycle = config, on_cycle
+        self.progress = progress or (lambda message: None)
+        self.machine = PickMachine()
+        self._alarm: str | None = None
+        self._lock = threading.Lock()
+        for axis in axes.values():
+            axis.add_fault_listener(self._on_fault)
+
+    # -- outside events ---------------------------------------------------------------------------
+    def stop(self, reason: str = "operator stop") -> None:
+        """Operator stop, from any thread: the pick ends in quick stop at the next cycle."""
+        with self._lock:
+            self._alarm = self._alarm or reason
+
+    def reset(self) -> None:
+        """Leave FAULT (or DONE) for IDLE; the only way out of FAULT."""
+        for axis in self.axes.values():
+            if axis.feedback().state is AxisState.FAULT:
+                axis.fault_reset()
+        with self._lock:
+            self._alarm = None
+        self.machine.send("reset")
+
+    def _on_fault(self, axis: str, fault: DriveFault) -> None:
+        self.stop(f"drive fault on {axis}: {fault}")
+
+    # -- the pick ---------------------------------------------------------------------------------
+    def run(self) -> PickResult:
+        """One pick from IDLE to DONE or FAULT."""
+        result = PickResult(False, "idle", None, [], None, {}, [])
+        self.machine.send("start")
+        steps: dict[str, Callable[[PickResult], str]] = {
+            "connecting": self._connect,
+            "acquiring": self._acquire,
+            "measuring": self._measure,
+            "planning": self._plan,
+            "aligning": self._align,
+            "verifying": self._verify,
+            "inserting": self._insert,
+        }
+        frame: Frame | None = None
+        replans = 0
+        while (state := self._state()) not in ("done", "fault"):
+            start = time.monotonic()
+            self.progress(state)
+            try:
+                self._check_alarm()
+                if state == "acquiring":
+                    frame = self.frames.read(self.config.timeouts["acquiring"])
+                    event = "acquired"
+                elif state == "measuring":
+                    prior = result.measurements[-1] if result.measurements else None
+                    result.measurements.append(self._timed(self.measure, state, frame, prior))
+                    event = "measured"
+                else:
+                    event = steps[state](result)
+                if event == "replan":
+                    replans += 1
+                    if replans > self.config.replans:
+                        raise AgfError("the pallet moved out of tolerance again after re-planning")
+            except (AgfError, TimeoutError) as exc:
+                self._safe_stop()
+                result.reason = f"{state}: {exc}"
+                self.machine.send("abort")
+                break
+            finally:
+                result.durations[state] = result.durations.get(state, 0.0) + time.monotonic() - start
+            self.machine.send(event)
+        result.state = self._state()
+        result.ok = result.state == "done"
+        return result
+
+    def _state(self) -> str:
+        return next(iter(self.machine.configuration)).id
+
+    def _timed(self, fn: Callable[..., Any], state: str, *args: Any) -> Any:
+        start = time.monotonic()
+        value = fn(*args)
+        if time.monotonic() - start > self.config.timeouts[state]:
+            raise TimeoutError(f"took {time.monotonic() - start:.1f} s, the limit is {self.config.timeouts[state]} s")
+        return value
+
+    def _connect(self, result: PickResult) -> str:
+        for axis in self.axes.values():
+            axis.enable()
+        return "connected"
+
+    def _plan(self, result: PickResult) -> str:
+        plan = self.planner.plan(result.measurements[-1], self._positions())
+        result.plan = plan
+        if not plan.safe:
+            raise AgfError(f"insertion refused: {plan.reason}")
+        return "planned"
+
+    def _align(self, result: PickResult) -> str:
+        self._follow(self.planner.align_motion(self._positions(), result.plan), "aligning", result)
+        return "aligned"
+
+    def _verify(self, result: PickResult) -> str:
+        frame = self.frames.read(self.config.timeouts["acquiring"])
+        measurement = self._timed(self.measure, "verifying", frame, result.measurements[-1])
+        result.measurements.append(measurement)
+        problem = self.planner.verify(measurement, result.plan)
+        return "verified" if problem is None else "replan"
+
+    def _insert(self, result: PickResult) -> str:
+        self._follow(self.planner.insert_motion(self._positions(), result.plan), "inserting", result)
+        return "inserted"
+
+    # -- motion streaming ---------------------------------------------------------------------------
+    def _positions(self) -> dict[str, float]:
+        return {name: axis.feedback().position for name, axis in self.axes.items()}
+
+    def _follow(self, motion: Motion, state: str, result: PickResult) -> None:
+        """Stream ``motion`` one setpoint per cycle, then wait until every axis arrives."""
+        deadline = time.monotonic() + self.config.timeouts[state]
+        t0 = time.monotonic()
+        target = motion.at(motion.duration)
+        while True:
+            now = time.monotonic()
+            if now > deadline:
+                raise TimeoutError(f"motion not finished within {self.config.timeouts[state]} s")
+            self._check_alarm()
+            setpoints = motion.at(min(now - t0, motion.duration))
+            for name, value in setpoints.items():
+                self.axes[name].send_setpoint(value)
+            positions = self._positions()
+            result.log.append({"t": now, "state": state, "setpoint": dict(setpoints), "actual": positions})
+            if self.on_cycle is not None:
+                self.on_cycle(positions)
+            if now - t0 >= motion.duration and all(
+                abs(positions[n] - v) <= self.config.arrive_tolerance for n, v in target.items()
+            ):
+                return
+            self._wait_cycle()
+
+    def _wait_cycle(self) -> None:
+        waiter = next((a for a in self.axes.values() if hasattr(a, "wait_for_feedback")), None)
+        if waiter is not None:
+            waiter.wait_for_feedback(timeout=10 * self.config.cycle)
+        else:
+            time.sleep(self.config.cycle)
+
+    def _check_alarm(self) -> None:
+        with self._lock:
+            alarm = self._alarm
+        if alarm is not None:
+            raise DriveFault(alarm)
+        for name, axis in self.axes.items():
+            feedback = axis.feedback()
+            if feedback.state is AxisState.FAULT:
+                raise DriveFault(f"drive fault on {name}: {feedback.fault or 'fault state'}")
+
+    def _safe_stop(self) -> None:
+        """Quick stop every axis; a failing axis must not keep the others moving."""
+        for axis in self.axes.values():
+            try:
+                axis.quick_stop()
+            except AgfError:
+                continue
