@@ -172,8 +172,6 @@ class PickController:
         self.machine.send("start")
         steps: dict[str, Callable[[PickResult], str]] = {
             "connecting": self._connect,
-            "acquiring": self._acquire,
-            "measuring": self._measure,
             "planning": self._plan,
             "aligning": self._align,
             "verifying": self._verify,

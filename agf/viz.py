@@ -131,3 +131,57 @@ def calibration_overlay(frame: NDArray, camera: CameraModel, fit: Any, out: Path
     )
     cv2.putText(view, text, (20, view.shape[0] - 30), cv2.FONT_HERSHEY_SIMPLEX, 1.0, CYAN, 2, cv2.LINE_AA)
     write_png(out, view)
+
+
+def pick_plots(result: Any, folder: Path) -> list[str]:
+    """Axis setpoints (thin) and actual positions (thick) over the pick, one panel per axis (PNG)."""
+    if not result.log:
+        return []
+    names = list(result.log[0]["actual"])
+    t0 = result.log[0]["t"]
+    t = np.array([row["t"] - t0 for row in result.log])
+    width, panel = 1200, 260
+    canvas = np.full((panel * len(names), width, 3), 255, np.uint8)
+    for k, name in enumerate(names):
+        actual = np.array([row["actual"][name] for row in result.log])
+        setpoint = np.array([row["setpoint"].get(name, np.nan) for row in result.log])
+        scale = 1e3 if name != "tilt" else np.degrees(1.0)
+        unit = "mm" if name != "tilt" else "deg"
+        values = np.concatenate([actual, setpoint[np.isfinite(setpoint)]]) * scale
+        low, high = float(values.min()), float(values.max())
+        span = max(high - low, 1e-6)
+        top = k * panel
+
+        def to_px(
+            times: NDArray, v: NDArray, top: int = top, low: float = low, span: float = span, scale: float = scale
+        ) -> NDArray:
+            u = 60 + (times / max(t[-1], 1e-6)) * (width - 80)
+            w = top + panel - 30 - (v * scale - low) / span * (panel - 60)
+            return np.stack([u, w], 1).astype(np.int32)
+
+        ok = np.isfinite(setpoint)
+        cv2.polylines(canvas, [to_px(t[ok], setpoint[ok])], False, (200, 120, 0), 1, cv2.LINE_AA)
+        cv2.polylines(canvas, [to_px(t, actual)], False, (30, 30, 200), 2, cv2.LINE_AA)
+        cv2.putText(
+            canvas,
+            f"{name} [{unit}]  {low:.1f} .. {high:.1f}   (blue setpoint, red actual)",
+            (60, top + 22),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            0.55,
+            (0, 0, 0),
+            1,
+            cv2.LINE_AA,
+        )
+    cv2.putText(
+        canvas,
+        f"time 0 .. {t[-1]:.1f} s of motion",
+        (60, canvas.shape[0] - 8),
+        cv2.FONT_HERSHEY_SIMPLEX,
+        0.5,
+        (0, 0, 0),
+        1,
+        cv2.LINE_AA,
+    )
+    path = folder / "pick_axes.png"
+    write_png(path, canvas)
+    return [str(path)]

@@ -1,0 +1,72 @@
+"""The controller's planner: insertion targets and the Ruckig motions to reach them, from config."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from agf.axis import AxisLimits
+from agf.config import ForkGeometry, section_from_mapping, unit
+from agf.insertion import InsertionConfig, InsertionPlan, plan_insertion
+from agf.kinematics import MastGeometry
+from agf.measurement import PalletMeasurement
+from agf.motion import Trajectory, plan_move
+from agf.pallets import PalletType
+
+
+@dataclass(frozen=True)
+class PickSettings:
+    """The ``insertion:`` section of the config (mm and degrees in YAML)."""
+
+    standoff: float = unit("mm", 0.25)
+    depth: float = unit("mm", 0.9)
+    sigmas: float = 3.0
+    max_yaw: float = unit("deg", math.radians(3.0))
+    verify_position: float = unit("mm", 0.01)
+    verify_pitch: float = unit("deg", math.radians(0.3))
+
+
+def pick_settings_from_mapping(data: Any, where: str) -> PickSettings:
+    return section_from_mapping(PickSettings, data or {}, where)
+
+
+@dataclass(frozen=True)
+class PickPlanner:
+    """Implements :class:`agf.controller.Planner` for one pallet type and one truck."""
+
+    mast: MastGeometry
+    forks: ForkGeometry
+    pallet: PalletType
+    limits: Mapping[str, AxisLimits]
+    settings: PickSettings = PickSettings()
+
+    def plan(self, measurement: PalletMeasurement, axes_now: Mapping[str, float]) -> InsertionPlan:
+        config = InsertionConfig(
+            standoff=self.settings.standoff,
+            depth=self.settings.depth,
+            sigmas=self.settings.sigmas,
+            max_yaw=self.settings.max_yaw,
+        )
+        return plan_insertion(measurement, axes_now, self.mast, self.forks, self.pallet, self.limits, config)
+
+    def align_motion(self, axes_now: Mapping[str, float], plan: InsertionPlan) -> Trajectory:
+        return plan_move(axes_now, plan.align, self.limits, "time")
+
+    def insert_motion(self, axes_now: Mapping[str, float], plan: InsertionPlan) -> Trajectory:
+        target = {name: plan.insert[name] for name in ("reach", "lift")}
+        return plan_move(axes_now, target, self.limits, "phase")
+
+    def verify(self, measurement: PalletMeasurement, plan: InsertionPlan) -> str | None:
+        """After aligning, the pallet should sit straight ahead at the stand-off, level with the forks."""
+        d = measurement.pallet_in_fork
+        yaw, pitch, _ = d.euler
+        x, y, z = d.translation
+        position_error = math.hypot(x - self.settings.standoff, z)
+        if position_error > self.settings.verify_position or abs(pitch) > self.settings.verify_pitch:
+            return (
+                f"after aligning the pallet is {position_error * 1e3:.1f} mm and {math.degrees(pitch):.2f} deg "
+                "from where the forks expect it"
+            )
+        return None

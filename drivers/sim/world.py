@@ -1,0 +1,222 @@
+"""The simulated world: a truck whose forks move on simulated CiA 402 drives over a CAN bus, a pallet
+standing in front of it, and a camera on the fork carriage that renders what it sees (``agf run`` on
+the default config and ``agf simulate``).
+
+The pallet is fixed in the truck frame; the camera moves with the forks, so every frame is rendered
+for the axes' actual positions. Every control cycle the tines are checked against the pallet's
+solid parts: a negative clearance is a collision, counted, never hidden.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import statistics
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from agf.camera import load_camera
+from agf.config import Config, load_calibration
+from agf.controller import ControllerConfig, PickController, PickResult
+from agf.errors import ConfigError, MeasurementError
+from agf.frames import Frame, FrameSource
+from agf.geometry import Transform
+from agf.kinematics import MastGeometry, fork_in_truck_from_axes
+from agf.measurement import PalletMeasurement
+from agf.motion import plan_move
+from agf.pallets import load_pallets
+from agf.paths import repo_path
+from agf.planner import PickPlanner, pick_settings_from_mapping
+from agf.scene import Environment, Load, PalletPlacement, Scene, load_scene
+from agf.vision.measure import measure_pallet
+from drivers.cia402_axis import axes_from_config
+from drivers.sim.collision import clearance, pallet_parts, tine_surface_points
+from drivers.sim.render import render
+
+START = {"lift": 0.6, "reach": 0.3, "tilt": 0.0}  # axes at the start of a pick (m, rad)
+
+
+class RenderedCamera(FrameSource):
+    """Frames rendered for the forks' actual position."""
+
+    def __init__(self, world: SimulatedWorld) -> None:
+        super().__init__(world.camera.width, world.camera.height)
+        self.world = world
+
+    def describe(self) -> str:
+        return "simulated camera"
+
+    def _read(self, timeout: float) -> np.ndarray | None:
+        if self.world.frames_lost:
+            self.world.frames_lost -= 1
+            return None
+        scene = self.world.scene_now()
+        image, _ = render(scene, self.world.camera)
+        return image
+
+
+class SimulatedWorld:
+    """Drives, pallet and camera of one simulated pick; a context manager that closes the bus."""
+
+    def __init__(self, config: Config, scene: Scene) -> None:
+        if scene.pallet is None:
+            raise ConfigError("a pick scene needs a 'pallet' (a calibration scene cannot be picked)")
+        self.config, self.scene = config, scene
+        self.camera = load_camera(scene.camera)
+        self.mast = MastGeometry()
+        self.pallet = load_pallets(config.vision.pallets)[scene.pallet.type]
+        self.network, self.axes = axes_from_config(
+            config.sections["drives"], config.sections["bus"], f"{config.source}:", base_dir=config.source.parent
+        )
+        self.frames_lost = 0
+        self.min_clearance = math.inf
+        self.inside = False
+        self._tines = tine_surface_points(config.forks)
+        self._parts = pallet_parts(self.pallet)
+        self._move_to(START)
+        self.pallet_in_truck = fork_in_truck_from_axes(self.positions(), self.mast) @ scene.pallet.in_fork
+
+    def __enter__(self) -> SimulatedWorld:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.network.close()
+
+    def positions(self) -> dict[str, float]:
+        return {name: axis.feedback().position for name, axis in self.axes.items()}
+
+    def scene_now(self) -> Scene:
+        fork_in_truck = fork_in_truck_from_axes(self.positions(), self.mast)
+        placement = PalletPlacement(self.scene.pallet.type, fork_in_truck.inverse() @ self.pallet_in_truck)
+        return dataclasses.replace(self.scene, pallet=placement)
+
+    def on_cycle(self, positions: dict[str, float]) -> None:
+        fork_in_pallet = self.pallet_in_truck.inverse() @ fork_in_truck_from_axes(positions, self.mast)
+        self.min_clearance = min(self.min_clearance, clearance(self._tines, fork_in_pallet, self._parts))
+
+    def _move_to(self, target: dict[str, float]) -> None:
+        """Bring the axes to the start pose (setup, not part of the pick)."""
+        for axis in self.axes.values():
+            axis.enable()
+        now = self.positions()
+        motion = plan_move(now, target, {n: a.limits for n, a in self.axes.items()})
+        start = time.monotonic()
+        while (t := time.monotonic() - start) < motion.duration + 0.3:
+            for name, value in motion.at(t).items():
+                self.axes[name].send_setpoint(value)
+            next(iter(self.axes.values())).wait_for_feedback(timeout=0.2)
+
+    def controller(self, progress=None) -> PickController:
+        calibration = load_calibration(self.config.vision.calibration)
+        camera = load_camera(self.config.vision.camera)
+
+        def measure(frame: Frame, prior: PalletMeasurement | None) -> PalletMeasurement:
+            return measure_pallet(
+                frame.image, camera, calibration, self.pallet, self.config.vision.search, forks=self.config.forks
+            ).measurement
+
+        settings = pick_settings_from_mapping(self.config.sections.get("insertion"), f"{self.config.source}: insertion")
+        planner = PickPlanner(
+            self.mast, self.config.forks, self.pallet, {n: a.limits for n, a in self.axes.items()}, settings
+        )
+        timeouts = {**ControllerConfig().timeouts, "acquiring": 60.0, "measuring": 30.0, "verifying": 90.0}
+        return PickController(
+            self.axes,
+            RenderedCamera(self),
+            measure,
+            planner,
+            ControllerConfig(cycle=self.network.settings.cycle, timeouts=timeouts),
+            on_cycle=self.on_cycle,
+            progress=progress,
+        )
+
+
+def pick_summary(result: PickResult, world: SimulatedWorld) -> dict[str, Any]:
+    final = world.scene_now().pallet.in_fork.to_dict()
+    return {
+        "ok": result.ok,
+        "state": result.state,
+        "reason": result.reason,
+        "collision": world.min_clearance < 0,
+        "min_clearance_mm": world.min_clearance * 1e3,
+        "cycle_s": sum(result.durations.values()),
+        "durations_s": result.durations,
+        "measured": [m.pallet_in_fork.to_dict() for m in result.measurements],
+        "pallet_in_fork_at_end": final,
+    }
+
+
+def run_command(config: Config, *, plots: str | None = None, progress: bool = True) -> dict[str, Any]:
+    """``agf run`` on the simulated world: one pick of the scene ``simulation.scene`` names."""
+    scene_path = repo_path((config.sections.get("simulation") or {}).get("scene", "configs/scenes/pick.yaml"))
+    scene = load_scene(scene_path)
+    say = (lambda state: print(f"agf run: {state}", flush=True)) if progress else None
+    with SimulatedWorld(config, scene) as world:
+        result = world.controller(say).run()
+        summary = pick_summary(result, world)
+    if plots:
+        from agf.viz import pick_plots
+
+        summary["plots"] = pick_plots(result, Path(plots))
+    return summary
+
+
+def random_scene(rng: np.random.Generator, base: Scene) -> Scene:
+    """A random pick: pitch -5..5 deg, fork heights of the paper and more, loaded or not, yaw +-3 deg,
+    stand-off 150..400 mm."""
+    pose = Transform.from_euler(
+        rng.uniform(0.15, 0.4),
+        rng.uniform(-0.03, 0.03),
+        rng.uniform(-0.3, 0.45),
+        0.0,
+        math.radians(rng.uniform(-5, 5)),
+        math.radians(rng.uniform(-3, 3)),
+    )
+    load = Load((1.0, 1.0, float(rng.uniform(0.5, 1.0)))) if rng.random() < 0.5 else None
+    environment = Environment(
+        floor=str(rng.choice(["floor", "truck-bed"])),
+        clutter_verticals=int(rng.integers(0, 8)),
+        light=float(rng.uniform(0.6, 1.3)),
+        neighbours=int(rng.integers(0, 3)),
+    )
+    return dataclasses.replace(
+        base,
+        pallet=PalletPlacement(base.pallet.type, pose),
+        load=load,
+        environment=environment,
+        seed=int(rng.integers(0, 2**31)),
+    )
+
+
+def simulate_command(
+    config: Config, *, scene: Path | None, runs: int | None, seed: int, plots: str | None = None
+) -> dict[str, Any]:
+    """``agf simulate``: whole picks in the simulated world; collisions and refusals counted."""
+    base = load_scene(scene or repo_path("configs/scenes/pick.yaml"))
+    rng = np.random.default_rng(seed)
+    scenes = [base] if runs is None else [random_scene(rng, base) for _ in range(runs)]
+    summaries, failures = [], []
+    for i, s in enumerate(scenes):
+        try:
+            with SimulatedWorld(config, s) as world:
+                summary = pick_summary(world.controller().run(), world)
+        except MeasurementError as exc:
+            summary = {"ok": False, "reason": str(exc), "collision": False, "min_clearance_mm": math.inf}
+        summaries.append(summary)
+        if not summary["ok"]:
+            failures.append({"run": i, "reason": summary["reason"], "pallet_in_fork": s.pallet.in_fork.to_dict()})
+    inserted = sum(s["ok"] for s in summaries)
+    cycles = [s["cycle_s"] for s in summaries if s["ok"]]
+    clearances = [s["min_clearance_mm"] for s in summaries if math.isfinite(s["min_clearance_mm"])]
+    return {
+        "ok": all(not s["collision"] for s in summaries),
+        "runs": len(summaries),
+        "inserted": inserted,
+        "collisions": sum(s["collision"] for s in summaries),
+        "min_clearance_mm": min(clearances) if clearances else None,
+        "median_cycle_s": statistics.median(cycles) if cycles else None,
+        "failures": failures,
+    }
