@@ -43,9 +43,7 @@ def _existing_file(text: str) -> Path:
 def _plugin(config: Config, role: str) -> Any:
     spec = config.plugins.get(role)
     if spec is None:
-        raise NotAvailableError(
-            f"{config.source}: plugins.{role} is not set, so this command has no {role} to use"
-        )
+        raise NotAvailableError(f"{config.source}: plugins.{role} is not set, so this command has no {role} to use")
     return load_object(spec, key=f"{config.source}: plugins.{role}")
 
 

@@ -84,9 +84,7 @@ def camera_from_kalibr(data: Any, where: str) -> CameraModel:
         coefficients = np.asarray(data.get("distortion_coeffs") or [], dtype=float)
         width, height = (int(v) for v in data["resolution"])
     except (KeyError, TypeError, ValueError) as exc:
-        raise ConfigError(
-            f"{where}: Kalibr camera needs camera_model, intrinsics and resolution ({exc})"
-        ) from exc
+        raise ConfigError(f"{where}: Kalibr camera needs camera_model, intrinsics and resolution ({exc})") from exc
     table: dict[tuple[str, str], tuple[type[CameraModel], int, int]] = {
         ("ds", "none"): (DoubleSphere, 6, 0),
         ("eucm", "none"): (ExtendedUnified, 6, 0),
@@ -95,9 +93,7 @@ def camera_from_kalibr(data: Any, where: str) -> CameraModel:
         ("pinhole", "equidistant"): (KannalaBrandt, 4, 4),
     }
     if (kind, distortion) not in table:
-        raise ConfigError(
-            f"{where}: unsupported Kalibr model {kind} + {distortion}; supported: {sorted(table)}"
-        )
+        raise ConfigError(f"{where}: unsupported Kalibr model {kind} + {distortion}; supported: {sorted(table)}")
     cls, n_intrinsics, n_coefficients = table[(kind, distortion)]
     if intrinsics.size != n_intrinsics or coefficients.size != n_coefficients:
         raise ConfigError(
@@ -133,9 +129,7 @@ def _build(
         model = cls(width, height, math.pi, shift, **values)
         if max_incidence_deg is not None:
             if not isinstance(max_incidence_deg, int | float) or not 0 < max_incidence_deg <= 180:
-                raise ValueError(
-                    f"max_incidence_deg: expected a number in (0, 180], got {max_incidence_deg!r}"
-                )
+                raise ValueError(f"max_incidence_deg: expected a number in (0, 180], got {max_incidence_deg!r}")
             limit = math.radians(max_incidence_deg)
         elif isinstance(model, OCamCalib):
             limit = default_max_incidence(model.pol, width, height, model.center_row, model.center_col)
@@ -202,9 +196,7 @@ def _positive_int(data: Mapping[str, Any], key: str, where: str) -> int:
 def _shift(data: Any, where: str) -> ViewpointShift | None:
     if data is None:
         return None
-    if not isinstance(data, Mapping) or not (
-        {"angles_deg", "offsets_mm"} == set(data) or {"poly_mm"} == set(data)
-    ):
+    if not isinstance(data, Mapping) or not ({"angles_deg", "offsets_mm"} == set(data) or {"poly_mm"} == set(data)):
         raise ConfigError(f"{where}: expected {{angles_deg: [...], offsets_mm: [...]}} or {{poly_mm: [...]}}")
     try:
         if "poly_mm" in data:

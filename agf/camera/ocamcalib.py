@@ -141,14 +141,11 @@ def read_calib_results(path: str | Path) -> OCamCalib:
     c, d, e = _fixed(lines[3], path, "affine (c d e)", 3)
     height, width = _fixed(lines[4], path, "image size (height width)", 2)
     if height != int(height) or width != int(width) or height <= 0 or width <= 0:
-        raise ConfigError(
-            f"{path}: image size: expected two positive integers (height width), got {lines[4][1]}"
-        )
+        raise ConfigError(f"{path}: image size: expected two positive integers (height width), got {lines[4][1]}")
     height, width = int(height), int(width)
     if not (0 <= center_row < height and 0 <= center_col < width):
         raise ConfigError(
-            f"{path}: centre (row {center_row}, column {center_col}) lies outside the "
-            f"{width} x {height} image"
+            f"{path}: centre (row {center_row}, column {center_col}) lies outside the {width} x {height} image"
         )
     shift, max_incidence = _extensions(lines[len(_SECTIONS) :], path)
     if max_incidence is None:
