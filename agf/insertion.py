@@ -34,7 +34,7 @@ class InsertionConfig:
     measurement are taken off the tolerances; residual errors of the drives (m, rad) add to them."""
 
     standoff: float = 0.25
-    depth: float = 0.9
+    depth: float = 0.6
     sigmas: float = 3.0
     drive_error_z: float = 0.002
     drive_error_tilt: float = math.radians(0.05)

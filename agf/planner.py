@@ -21,7 +21,7 @@ class PickSettings:
     """The ``insertion:`` section of the config (mm and degrees in YAML)."""
 
     standoff: float = unit("mm", 0.25)
-    depth: float = unit("mm", 0.9)
+    depth: float = unit("mm", 0.6)
     sigmas: float = 3.0
     max_yaw: float = unit("deg", math.radians(3.0))
     verify_position: float = unit("mm", 0.01)
