@@ -1,0 +1,95 @@
+"""Whole picks in the simulated world: simulated CiA 402 drives on python-can's virtual bus, frames
+rendered through the camera model for the forks' actual position, collisions checked every cycle."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import pytest
+
+from agf.axis import AxisState
+from agf.config import load_config
+from agf.paths import DEFAULT_CONFIG, repo_path
+from agf.scene import load_scene
+from drivers.sim.world import SimulatedWorld, pick_summary
+
+CONFIG = load_config(DEFAULT_CONFIG)
+SCENE = load_scene(repo_path("configs/scenes/pick.yaml"))
+
+
+def run_with(inject=None, when_state="aligning", after_cycles=20):
+    """One pick; ``inject(world)`` runs once, ``after_cycles`` control cycles into ``when_state``."""
+    with SimulatedWorld(CONFIG, SCENE) as world:
+        controller = world.controller()
+        cycles = {"n": 0}
+        plain = controller.on_cycle
+
+        def on_cycle(positions):
+            plain(positions)
+            if inject is not None and controller._state() == when_state:
+                cycles["n"] += 1
+                if cycles["n"] == after_cycles:
+                    inject(world)
+
+        controller.on_cycle = on_cycle
+        result = controller.run()
+        summary = pick_summary(result, world)
+        time.sleep(1.0)  # the quick-stop ramp
+        before = world.positions()
+        time.sleep(0.5)
+        after = world.positions()
+        states = {name: axis.feedback().state for name, axis in world.axes.items()}
+    return result, summary, before, after, states
+
+
+def test_a_pick_inserts_without_collision():
+    result, summary, *_ = run_with()
+    assert result.ok, result.reason
+    assert not summary["collision"] and summary["min_clearance_mm"] > 5
+    end = summary["pallet_in_fork_at_end"]
+    assert end["x_mm"] == pytest.approx(-600, abs=10)  # inserted to the configured depth
+    assert abs(end["z_mm"]) < 5 and abs(end["pitch_deg"]) < 0.1
+
+
+def assert_stopped(result, before, after, states, reason):
+    assert result.state == "fault" and reason in result.reason
+    assert all(abs(after[n] - before[n]) < 1e-4 for n in before)  # no further motion
+    assert not any(s is AxisState.ENABLED for s in states.values())
+
+
+def test_drive_fault_mid_motion_ends_in_quick_stop_with_its_name():
+    result, _, before, after, states = run_with(lambda world: world.network.sim_drives[1].inject_fault(0x4310))
+    assert_stopped(result, before, after, states, "drive fault on reach")
+    assert "over-temperature" in result.reason
+
+
+def test_lost_drive_heartbeat_mid_motion_ends_in_quick_stop():
+    result, _, before, after, states = run_with(lambda world: world.network.sim_drives[0].go_silent())
+    assert result.state == "fault" and "heartbeat" in result.reason
+
+
+def test_lost_frame_ends_in_quick_stop_with_the_reason():
+    def lose(world):
+        world.frames_lost = 1  # the verify frame, taken as the align motion ends
+
+    result, _, before, after, states = run_with(lose)
+    assert_stopped(result, before, after, states, "no frame")
+
+
+def test_operator_stop_mid_motion():
+    with SimulatedWorld(CONFIG, SCENE) as world:
+        controller = world.controller()
+        plain = controller.on_cycle
+
+        def on_cycle(positions):
+            plain(positions)
+            if controller._state() == "inserting":
+                controller.stop("operator stop button")
+
+        controller.on_cycle = on_cycle
+        result = controller.run()
+        assert result.state == "fault" and "operator stop button" in result.reason
+        assert math.isfinite(world.min_clearance)
+        controller.reset()  # only an explicit reset leaves FAULT
+        assert controller._state() == "idle"
