@@ -74,6 +74,7 @@ class PoseEstimate:
     edges_used: int
     occluded: float
     group_inliers: float
+    sigma: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # x, y, z (m), yaw (rad), from the fit
     timing_ms: dict[str, float] = field(default_factory=dict)
 
 
@@ -168,7 +169,7 @@ def estimate_pallet_pose(
     if not fitted:
         raise MeasurementError("the pallet front face could not be fitted to image edges")
     fitted.sort(key=lambda f: -f[0])
-    score, params, residual, used, occluded, worst_group = fitted[0]
+    score, params, residual, used, occluded, worst_group, sigma = fitted[0]
     margin = _margin(score, params, fitted[1:], candidates, face, camera_in_fork.translation)
     timing["total"] = (time.perf_counter() - start) * 1e3
     pallet_in_fork = params.transform()
@@ -181,6 +182,7 @@ def estimate_pallet_pose(
         used,
         occluded,
         worst_group,
+        sigma,
         timing,
     )
     if check:
@@ -342,7 +344,7 @@ def _same_place(p: _Params, q: _Params, face: FaceModel, eye: Array) -> bool:
 def _refine(smooth, camera, camera_in_fork, params, points, normals, groups, forks, config):
     """Gauss-Newton on pocket-edge offsets.
 
-    Returns (params, residual_px, edges_used, occluded, worst group inlier fraction) or None. Each edge
+    Returns (params, residual_px, edges_used, occluded, worst group inlier fraction, sigma) or None. Each edge
     group (pocket tops, bottoms, sides) weighs the same in total, so the many horizontal edge points
     cannot outvote the few vertical ones that fix the scale, hence the depth.
     """
@@ -370,6 +372,7 @@ def _refine(smooth, camera, camera_in_fork, params, points, normals, groups, for
         inliers = weights > 0
         seen = valid & ~hidden
         fractions = [float(np.mean(inliers[seen & (groups == g)])) for g in np.unique(groups[seen])]
+        robust = weights.copy()
         for g in np.unique(groups):
             total = weights[groups == g].sum()
             weights[groups == g] *= 1.0 / total if total > 0 else 0.0
@@ -378,7 +381,10 @@ def _refine(smooth, camera, camera_in_fork, params, points, normals, groups, for
         params = params.moved(delta)
         residual = float(np.sqrt(np.mean((edges.offset - J @ delta)[inliers] ** 2))) if inliers.any() else math.inf
         used, worst = int(inliers.sum()), min(fractions)
-    return params, residual, used, occluded, worst
+    # Covariance of the last step with the unnormalised robust weights: residual^2 (J^T W J)^-1.
+    information = (J * robust[:, None]).T @ J
+    sigma = tuple(np.sqrt(np.abs(np.diag(np.linalg.pinv(information))) * residual**2).tolist())
+    return params, residual, used, occluded, worst, sigma
 
 
 def _tukey(offset: Array, usable: NDArray[np.bool_], strength: Array, floor: float) -> Array:

@@ -64,6 +64,8 @@ class PitchEvidence:
         Predicted regions as panorama (col_min, col_max, row_min, row_max).
     lines : list of SphereLine
         The edges found.
+    sigma : float
+        Standard deviation of the pitch (rad), from the scatter of each line's inlier directions.
     """
 
     hypothesis: str
@@ -74,6 +76,7 @@ class PitchEvidence:
     panorama: Panorama
     regions: list[Array]
     lines: list[SphereLine]
+    sigma: float = math.nan
 
 
 def unloaded_evidence(
@@ -133,7 +136,7 @@ def _evidence(
     panorama = _panorama_over(predicted, segments, config)
     image, valid = render_panorama(gray, camera, panorama)
     directions, weights, columns, rows = _edge_points(image.astype(np.float32), valid, panorama)
-    lines, regions, ratios = [], [], []
+    lines, regions, ratios, scatter = [], [], [], []
     for segment in segments:
         pixels = panorama.pixels_from_directions(_unit(segment))
         band_px = config.band / panorama.pixel_size()
@@ -148,6 +151,9 @@ def _evidence(
         )
         corrected = _from_reference_viewpoint(camera, directions[inside], segment)
         line = hough_line(panorama, corrected, weights[inside], lon, tau_max=config.tau_max)
+        if line is not None:
+            spread = corrected[line.inliers] @ line.normal
+            scatter.append(float(np.std(spread)) / math.sqrt(max(line.inliers.sum(), 1)))
         length = max(region[3] - region[2], 1.0)
         ratios.append(0.0 if line is None else min(line.score / length, 1.0))
         if line is not None:
@@ -161,7 +167,8 @@ def _evidence(
     except ValueError:
         return PitchEvidence(hypothesis, ratio, False, math.nan, nan, panorama, regions, lines)
     pitch = _pitch_from_direction(camera_in_fork.apply_direction(direction), pallet_in_fork, hypothesis)
-    return PitchEvidence(hypothesis, ratio, True, pitch, direction, panorama, regions, lines)
+    sigma = math.hypot(*scatter)
+    return PitchEvidence(hypothesis, ratio, True, pitch, direction, panorama, regions, lines, sigma)
 
 
 def _pitch_from_direction(direction_f: Array, pallet_in_fork: Transform, hypothesis: str) -> float:

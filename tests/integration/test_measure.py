@@ -94,6 +94,7 @@ def test_agf_measure_cli_prints_the_contract_and_writes_the_overlay(rendered, tm
     assert set(result["pallet_in_fork"]) == {"x_mm", "y_mm", "z_mm", "pitch_deg", "yaw_deg"}
     assert abs(result["pallet_in_fork"]["z_mm"] - 355) <= 5
     assert set(result["scores"]) == {"loaded", "unloaded"} and result["timing_ms"]["total"] > 0
+    assert result["insertion"]["safe"] is True and result["insertion"]["margin_mm"] > 0
     assert cv2.imread(str(overlay)) is not None
 
 
