@@ -1,0 +1,15 @@
+"""Generated documentation stays in step with the code it is generated from."""
+
+from __future__ import annotations
+
+from importlib.machinery import SourceFileLoader
+
+from agf.paths import repo_path
+
+
+def test_controller_diagram_in_docs_is_current():
+    tool = SourceFileLoader("controller_diagram", str(repo_path("tools/controller_diagram"))).load_module()
+    from agf.controller import controller_diagram
+
+    expected = tool.TEXT.format(diagram=controller_diagram().rstrip())
+    assert repo_path("docs/controller.md").read_text() == expected, "run tools/controller_diagram"
