@@ -45,6 +45,16 @@ def as_pixels(pixels: ArrayLike) -> Array:
     return array
 
 
+def pixels_from_normalised(mx: Array, my: Array, fx: float, fy: float, cx: float, cy: float) -> Array:
+    """Pixels (N, 2) of normalised image coordinates through focal lengths and principal point (px)."""
+    return np.stack([fx * mx + cx, fy * my + cy], axis=1)
+
+
+def normalised_from_pixels(pixels: Array, fx: float, fy: float, cx: float, cy: float) -> tuple[Array, Array]:
+    """The inverse of :func:`pixels_from_normalised`."""
+    return (pixels[:, 0] - cx) / fx, (pixels[:, 1] - cy) / fy
+
+
 def incidence_angle(directions: Array) -> Array:
     """Angle (rad) between camera-frame directions (N, 3) and the optical axis X."""
     return np.arctan2(np.hypot(directions[:, 1], directions[:, 2]), directions[:, 0])

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agf.camera.base import Array, CameraModel
+from agf.camera.base import Array, CameraModel, normalised_from_pixels, pixels_from_normalised
 
 
 @dataclass(frozen=True, eq=False)
@@ -35,11 +35,10 @@ class DoubleSphere(CameraModel):
         w2 = (w1 + self.xi) / np.sqrt(2 * w1 * self.xi + self.xi**2 + 1)
         ok = (z > -w2 * d1) & (denominator > 0)
         safe = np.where(ok, denominator, 1.0)
-        return np.stack([self.fx * x / safe + self.cx, self.fy * y / safe + self.cy], axis=1), ok
+        return pixels_from_normalised(x / safe, y / safe, self.fx, self.fy, self.cx, self.cy), ok
 
     def _unproject_optical(self, pixels: Array) -> tuple[Array, np.ndarray]:
-        mx = (pixels[:, 0] - self.cx) / self.fx
-        my = (pixels[:, 1] - self.cy) / self.fy
+        mx, my = normalised_from_pixels(pixels, self.fx, self.fy, self.cx, self.cy)
         r2 = mx * mx + my * my
         inner = 1 - (2 * self.alpha - 1) * r2
         ok = inner >= 0

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agf.camera.base import Array, CameraModel
+from agf.camera.base import Array, CameraModel, normalised_from_pixels, pixels_from_normalised
 
 
 @dataclass(frozen=True, eq=False)
@@ -32,11 +32,10 @@ class ExtendedUnified(CameraModel):
         w = (1 - self.alpha) / self.alpha if self.alpha > 0.5 else self.alpha / (1 - self.alpha)
         ok = (z > -w * rho) & (denominator > 0)
         safe = np.where(ok, denominator, 1.0)
-        return np.stack([self.fx * x / safe + self.cx, self.fy * y / safe + self.cy], axis=1), ok
+        return pixels_from_normalised(x / safe, y / safe, self.fx, self.fy, self.cx, self.cy), ok
 
     def _unproject_optical(self, pixels: Array) -> tuple[Array, np.ndarray]:
-        mx = (pixels[:, 0] - self.cx) / self.fx
-        my = (pixels[:, 1] - self.cy) / self.fy
+        mx, my = normalised_from_pixels(pixels, self.fx, self.fy, self.cx, self.cy)
         r2 = mx * mx + my * my
         gamma = 1 - self.alpha
         inner = 1 - (self.alpha - gamma) * self.beta * r2

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agf.camera.base import Array, CameraModel
+from agf.camera.base import Array, CameraModel, normalised_from_pixels, pixels_from_normalised
 
 
 @dataclass(frozen=True, eq=False)
@@ -44,12 +44,11 @@ class KannalaBrandt(CameraModel):
         theta = np.arctan2(rho, z)
         theta_d, slope = self._distort(theta)
         scale = np.where(rho > 0, theta_d / np.where(rho > 0, rho, 1.0), 0.0)
-        pixels = np.stack([self.fx * x * scale + self.cx, self.fy * y * scale + self.cy], axis=1)
+        pixels = pixels_from_normalised(x * scale, y * scale, self.fx, self.fy, self.cx, self.cy)
         return pixels, slope > 0
 
     def _unproject_optical(self, pixels: Array) -> tuple[Array, np.ndarray]:
-        mx = (pixels[:, 0] - self.cx) / self.fx
-        my = (pixels[:, 1] - self.cy) / self.fy
+        mx, my = normalised_from_pixels(pixels, self.fx, self.fy, self.cx, self.cy)
         theta_d = np.hypot(mx, my)
         theta = theta_d.copy()
         for _ in range(20):

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agf.camera.base import Array, CameraModel
+from agf.camera.base import Array, CameraModel, normalised_from_pixels, pixels_from_normalised
 
 
 @dataclass(frozen=True, eq=False)
@@ -53,11 +53,11 @@ class Unified(CameraModel):
         ok = (unit[:, 2] > self._limit()) & (denominator > 0)
         m = unit[:, :2] / np.where(ok, denominator, 1.0)[:, None]
         distorted, _ = self._distort(m)
-        pixels = np.stack([self.fx * distorted[:, 0] + self.cx, self.fy * distorted[:, 1] + self.cy], axis=1)
+        pixels = pixels_from_normalised(distorted[:, 0], distorted[:, 1], self.fx, self.fy, self.cx, self.cy)
         return pixels, ok
 
     def _unproject_optical(self, pixels: Array) -> tuple[Array, np.ndarray]:
-        target = np.stack([(pixels[:, 0] - self.cx) / self.fx, (pixels[:, 1] - self.cy) / self.fy], axis=1)
+        target = np.stack(normalised_from_pixels(pixels, self.fx, self.fy, self.cx, self.cy), axis=1)
         m = target.copy()
         for _ in range(30):
             distorted, jac = self._distort(m)

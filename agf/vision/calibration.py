@@ -32,7 +32,7 @@ from agf.camera import CameraModel, load_camera
 from agf.config import Config, ForkGeometry, load_calibration
 from agf.errors import InputError, MeasurementError
 from agf.geometry import Transform
-from agf.vision.edges import search_edges
+from agf.vision.edges import project_with_normals, search_edges
 
 Array = NDArray[np.float64]
 
@@ -144,10 +144,7 @@ def _grid_start(smooth, camera, points, normals, nominal: Transform, config: Cal
 
 def _edge_score(gx, gy, camera, pose: Transform, points, normals) -> float:
     fork_in_camera = pose.inverse()
-    p0, valid = camera.project(fork_in_camera.apply(points))
-    p1, _ = camera.project(fork_in_camera.apply(points + 0.003 * normals))
-    d = p1 - p0
-    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+    p0, d, valid = project_with_normals(camera, fork_in_camera, points, normals)
     maps = (p0[:, 0:1].astype(np.float32), p0[:, 1:2].astype(np.float32))
     g = np.c_[cv2.remap(gx, *maps, cv2.INTER_LINEAR), cv2.remap(gy, *maps, cv2.INTER_LINEAR)]
     falling = -np.sum(g * d, axis=1)  # bright panel inside, darker outside
@@ -160,10 +157,7 @@ def _gauss_newton(smooth, camera, points, normals, start: Transform, config: Cal
     residual, inliers, p0, offsets = math.inf, 0.0, np.zeros((0, 2)), np.zeros(0)
     for radius in config.radii_px:
         fork_in_camera = _transform(params).inverse()
-        p0, valid = camera.project(fork_in_camera.apply(points))
-        p1, _ = camera.project(fork_in_camera.apply(points + 0.003 * normals))
-        d = p1 - p0
-        d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+        p0, d, valid = project_with_normals(camera, fork_in_camera, points, normals)
         edges = search_edges(smooth, p0, d, radius)
         J = np.empty((len(points), 6))
         for k in range(6):

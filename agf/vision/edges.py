@@ -8,6 +8,9 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from agf.camera.base import CameraModel
+from agf.geometry import Transform
+
 Array = NDArray[np.float64]
 
 
@@ -55,3 +58,15 @@ def search_edges(
     inside = (u >= 0) & (v >= 0) & (u <= image.shape[1] - 1) & (v <= image.shape[0] - 1)
     valid = inner & np.all(inside, axis=1) & (centre > np.maximum(slope[:, 0], slope[:, -1]))
     return EdgeSearch(t[best] + shift * step, np.where(valid, centre, 0.0), valid)
+
+
+def project_with_normals(
+    camera: CameraModel, model_in_camera: Transform, points: Array, normals: Array
+) -> tuple[Array, Array, NDArray[np.bool_]]:
+    """Pixels (N, 2) of model points (N, 3), the unit image directions (N, 2) of their model normals
+    (N, 3), and which points project validly: where and along what to look for each model edge."""
+    p0, valid = camera.project(model_in_camera.apply(points))
+    p1, _ = camera.project(model_in_camera.apply(points + 0.003 * normals))  # 3 mm along the normal
+    direction = p1 - p0
+    direction /= np.maximum(np.linalg.norm(direction, axis=1, keepdims=True), 1e-12)
+    return p0, direction, valid

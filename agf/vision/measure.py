@@ -70,21 +70,18 @@ def measure_pallet(
     timing: dict[str, float] = {}
     gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
     face = face_model_from_pallet(pallet)
+    narrow = PoseSearchConfig(**{**config.pose.__dict__, "prior_window": 0.04, "prior_yaw_window": math.radians(2)})
+
+    def pose_at(near: Transform | None, pitch: float, search: PoseSearchConfig) -> PoseEstimate:
+        t = time.perf_counter()
+        estimate = estimate_pallet_pose(
+            gray, camera, camera_in_fork, face, volume, prior=near, pitch=pitch, forks=forks, config=search, check=False
+        )
+        timing["pose"] = timing.get("pose", 0.0) + (time.perf_counter() - t) * 1e3
+        return estimate
+
     pitch = prior.euler[1] if prior is not None else 0.0
-    pose = estimate_pallet_pose(
-        gray,
-        camera,
-        camera_in_fork,
-        face,
-        volume,
-        prior=prior,
-        pitch=pitch,
-        forks=forks,
-        config=config.pose,
-        check=False,
-    )
-    first = pose
-    timing["pose"] = pose.timing_ms.get("total", 0.0)
+    first = pose = pose_at(prior, pitch, config.pose)
     evidence: dict[str, PitchEvidence] = {}
     for _ in range(config.iterations):
         t = time.perf_counter()
@@ -98,21 +95,7 @@ def measure_pallet(
         pitch = chosen.pitch
         if converged:
             break
-        narrow = PoseSearchConfig(**{**config.pose.__dict__, "prior_window": 0.04, "prior_yaw_window": math.radians(2)})
-        t = time.perf_counter()
-        pose = estimate_pallet_pose(
-            gray,
-            camera,
-            camera_in_fork,
-            face,
-            volume,
-            prior=pose.pallet_in_fork,
-            pitch=pitch,
-            forks=forks,
-            config=narrow,
-            check=False,
-        )
-        timing["pose"] += (time.perf_counter() - t) * 1e3
+        pose = pose_at(pose.pallet_in_fork, pitch, narrow)
     else:
         raise MeasurementError(f"pose and pitch did not agree after {config.iterations} iterations")
     # The narrow re-searches see no rivals; the wide first search did, at the assumed pitch.

@@ -33,7 +33,7 @@ from agf.camera.base import CameraModel
 from agf.config import ForkGeometry, SearchVolume
 from agf.errors import MeasurementError
 from agf.geometry import Transform, matrix_from_euler
-from agf.vision.edges import search_edges
+from agf.vision.edges import project_with_normals, search_edges
 from agf.vision.face_model import FaceModel
 
 Array = NDArray[np.float64]
@@ -353,10 +353,7 @@ def _refine(smooth, camera, camera_in_fork, params, points, normals, groups, for
     residual, used, occluded, worst = math.inf, 0, 0.0, 0.0
     for radius in config.radii_px:
         T = fork_in_camera @ params.transform()
-        p0, valid = camera.project(T.apply(points))
-        p1, _ = camera.project(T.apply(points + 0.003 * normals))
-        direction = p1 - p0
-        direction /= np.maximum(np.linalg.norm(direction, axis=1, keepdims=True), 1e-12)
+        p0, direction, valid = project_with_normals(camera, T, points, normals)
         edges = search_edges(smooth, p0, direction, radius)
         J = np.empty((len(points), 4))
         for k in range(4):
