@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -26,6 +27,9 @@ class PickSettings:
     max_yaw: float = unit("deg", math.radians(3.0))
     verify_position: float = unit("mm", 0.01)
     verify_pitch: float = unit("deg", math.radians(0.3))
+    # Plans use this share of each drive's velocity, acceleration and jerk limits, so that a late
+    # control cycle never asks a drive for more than it can give (a following-error fault).
+    motion_share: float = 0.8
 
 
 def pick_settings_from_mapping(data: Any, where: str) -> PickSettings:
@@ -52,11 +56,20 @@ class PickPlanner:
         return plan_insertion(measurement, axes_now, self.mast, self.forks, self.pallet, self.limits, config)
 
     def align_motion(self, axes_now: Mapping[str, float], plan: InsertionPlan) -> Trajectory:
-        return plan_move(axes_now, plan.align, self.limits, "time")
+        return plan_move(axes_now, plan.align, self._motion_limits(), "time")
 
     def insert_motion(self, axes_now: Mapping[str, float], plan: InsertionPlan) -> Trajectory:
         target = {name: plan.insert[name] for name in ("reach", "lift")}
-        return plan_move(axes_now, target, self.limits, "phase")
+        return plan_move(axes_now, target, self._motion_limits(), "phase")
+
+    def _motion_limits(self) -> dict[str, AxisLimits]:
+        k = self.settings.motion_share
+        return {
+            name: dataclasses.replace(
+                a, max_velocity=k * a.max_velocity, max_acceleration=k * a.max_acceleration, max_jerk=k * a.max_jerk
+            )
+            for name, a in self.limits.items()
+        }
 
     def verify(self, measurement: PalletMeasurement, plan: InsertionPlan) -> str | None:
         """After aligning, the pallet should sit straight ahead at the stand-off, level with the forks."""

@@ -25,6 +25,7 @@ from typing import Literal
 from agf.config import child, read_yaml, require_positive, section_from_mapping, unit
 from agf.errors import ConfigError
 from agf.geometry import Transform
+from agf.pallets import load_pallets
 from agf.paths import repo_path
 
 
@@ -124,6 +125,13 @@ def load_scene(path: str | Path) -> Scene:
         raise ConfigError(f"{where} give either 'pallet' (a pick scene) or 'panel' (a calibration scene)")
     if scene.panel is not None and scene.load is not None:
         raise ConfigError(f"{child(where, 'load')}: a calibration scene has no load")
+    if scene.pallet is not None:
+        catalogue = load_pallets(repo_path("configs/pallets.yaml"))
+        if scene.pallet.type not in catalogue:
+            raise ConfigError(
+                f"{child(where, 'pallet.type')}: unknown pallet type {scene.pallet.type!r}; "
+                f"the catalogue configs/pallets.yaml has {sorted(catalogue)}"
+            )
     return Scene(
         camera, scene.camera_in_fork, scene.pallet, scene.load, scene.environment, scene.noise, scene.seed, scene.panel
     )

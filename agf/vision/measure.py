@@ -37,7 +37,7 @@ class MeasureConfig:
 
     pose: PoseSearchConfig = field(default_factory=PoseSearchConfig)
     pitch: PitchConfig = field(default_factory=PitchConfig)
-    iterations: int = 4
+    iterations: int = 6
     pitch_tolerance: float = math.radians(0.01)
     # Floors under the fitted uncertainties: the fits see pixel noise, not the systematic errors (wood
     # grain, blur) that the rendered paper scenes show (up to 2 mm in z and 0.07 deg in pitch).
