@@ -5,6 +5,7 @@ Drawing only; nothing here decides anything. Images are BGR uint8, as OpenCV wri
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
@@ -90,9 +91,59 @@ def _panorama_panel(gray: NDArray, camera: CameraModel, evidence: Any, height: i
     return panel
 
 
-def measurement_overlay(frame: NDArray, camera: CameraModel, pallet: PalletType, detail: Any, out: Path) -> None:
+def rectified_face(
+    gray: NDArray,
+    camera: CameraModel,
+    pallet_in_camera: Transform,
+    pallet: PalletType,
+    pixel: float = 0.002,
+    margin: float = 0.04,
+) -> tuple[NDArray, NDArray]:
+    """The image projected onto the front-face plane at the fitted pose, and the face model, side by side
+    material for people (2 mm per pixel, with a margin around the face)."""
+    face = face_model_from_pallet(pallet)
+    model, ys, zs = face.raster(pixel, margin)
+    yy, zz = np.meshgrid(ys, zs)
+    points = np.stack([np.zeros(yy.size), yy.ravel(), zz.ravel()], axis=1)
+    pixels, valid = camera.project(pallet_in_camera.apply(points))
+    maps = [pixels[:, k].reshape(yy.shape).astype(np.float32) for k in (0, 1)]
+    rectified = cv2.remap(gray, maps[0], maps[1], cv2.INTER_LINEAR)
+    rectified[~valid.reshape(yy.shape)] = 0
+    return rectified, (model * 255).astype(np.uint8)
+
+
+def tolerance_diagram(
+    pocket_height: float, forks: Any, sigma_z: float, sigma_pitch: float, sigmas: float = 3.0, size: int = 360
+) -> NDArray:
+    """Paper Fig. 14: the region of height error against tilt error where the four inequalities of
+    section V.A hold (green), with this measurement's uncertainty box (k sigma) at its centre."""
+    from agf.insertion import tolerance_slacks
+
+    dz = np.linspace(-pocket_height / 2, pocket_height / 2, size)
+    dtheta = np.radians(np.linspace(-3.0, 3.0, size))
+    ok = np.array([[tolerance_slacks(z, t, pocket_height, forks).min() > 0 for t in dtheta] for z in dz[::-1]])
+    image = np.full((size, size, 3), 255, np.uint8)
+    image[ok] = (170, 225, 170)
+    cz = (size - 1) / 2
+    half_w = sigmas * math.degrees(sigma_pitch) / 6.0 * size
+    half_h = sigmas * sigma_z / pocket_height * size
+    cv2.rectangle(image, (int(cz - half_w), int(cz - half_h)), (int(cz + half_w), int(cz + half_h)), RED, 2)
+    cv2.drawMarker(image, (int(cz), int(cz)), RED, cv2.MARKER_CROSS, 12, 1)
+    for text, org in (
+        (f"dZ +-{pocket_height * 500:.0f} mm (up)", (6, 16)),
+        ("dtheta -3 .. +3 deg", (6, size - 8)),
+        (f"box: {sigmas:.0f} sigma", (size - 120, 16)),
+    ):
+        cv2.putText(image, text, org, cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+    return image
+
+
+def measurement_overlay(
+    frame: NDArray, camera: CameraModel, pallet: PalletType, detail: Any, out: Path, forks: Any = None
+) -> None:
     """The frame with the matched face, beside the loaded and unloaded panoramas with their predicted
-    regions (yellow) and detected lines (green valid, red not)."""
+    regions (yellow) and detected lines (green valid, red not); below, the image rectified onto the
+    face plane next to the face model, and the tolerance diagram with this measurement's uncertainty."""
     gray = frame if frame.ndim == 2 else cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
     view = cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR)
     draw_face(view, camera, detail.measurement.pallet_in_camera, pallet, GREEN)
@@ -108,7 +159,17 @@ def measurement_overlay(frame: NDArray, camera: CameraModel, pallet: PalletType,
     )
     canvas = np.hstack([view, column[:height]])
     cv2.putText(canvas, text, (10, height - 14), cv2.FONT_HERSHEY_SIMPLEX, 0.6, CYAN, 1, cv2.LINE_AA)
-    write_png(out, canvas)
+    rectified, model = rectified_face(gray, camera, detail.measurement.pallet_in_camera, pallet)
+    strip = np.vstack([rectified, np.full((6, rectified.shape[1]), 255, np.uint8), model])
+    strip = cv2.cvtColor(cv2.resize(strip, (int(strip.shape[1] * 360 / strip.shape[0]), 360)), cv2.COLOR_GRAY2BGR)
+    m = detail.measurement
+    parts = [strip]
+    if forks is not None:
+        parts.append(tolerance_diagram(pallet.pocket_height, forks, m.sigma_z, m.sigma_pitch))
+    bottom = np.hstack(parts)
+    width = max(canvas.shape[1], bottom.shape[1])
+    pad = lambda image: cv2.copyMakeBorder(image, 0, 0, 0, width - image.shape[1], cv2.BORDER_CONSTANT)  # noqa: E731
+    write_png(out, np.vstack([pad(canvas), pad(bottom)]))
 
 
 def write_png(path: Path, image: NDArray) -> None:

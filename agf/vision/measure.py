@@ -165,7 +165,7 @@ def measure_command(
     if overlay:
         from agf.viz import measurement_overlay
 
-        measurement_overlay(frame, model, pallet, detail, Path(overlay))
+        measurement_overlay(frame, model, pallet, detail, Path(overlay), forks=config.forks)
     return result
 
 
