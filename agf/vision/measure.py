@@ -120,6 +120,12 @@ def _choose(evidence: dict[str, PitchEvidence]) -> PitchEvidence:
         return evidence["unloaded"]
     if evidence["loaded"].valid:
         return evidence["loaded"]
+    ambiguous = [name for name, e in evidence.items() if e.ambiguous]
+    if ambiguous:
+        raise MeasurementError(
+            f"no trustworthy pitch: a second line runs beside the {' and '.join(ambiguous)} edges "
+            "(a rack upright or a shadow next to the edge); refusing rather than guessing"
+        )
     raise MeasurementError(
         "no pitch: neither the deck edges (unloaded, ratio "
         f"{evidence['unloaded'].ratio:.2f}) nor the load edges (loaded, ratio {evidence['loaded'].ratio:.2f}) "

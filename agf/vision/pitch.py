@@ -40,6 +40,7 @@ class PitchConfig:
     min_ratio: float = 0.5  # Hough score / predicted length for a valid hypothesis
     load_search: float = 0.25  # m: how much narrower than the pallet a load may be, each side
     load_height: float = 0.4  # m of load edge expected above the deck
+    rival_gap: float = 12.0  # panorama pixels: a parallel line this close to an edge makes it ambiguous
 
 
 @dataclass(frozen=True)
@@ -66,6 +67,9 @@ class PitchEvidence:
         The edges found.
     sigma : float
         Standard deviation of the pitch (rad), from the scatter of each line's inlier directions.
+    ambiguous : bool
+        A second strong line runs beside one of the edges (a rack upright next to a load edge, a shadow):
+        the fit cannot tell which is the edge, so the hypothesis is not valid.
     """
 
     hypothesis: str
@@ -77,6 +81,7 @@ class PitchEvidence:
     regions: list[Array]
     lines: list[SphereLine]
     sigma: float = math.nan
+    ambiguous: bool = False
 
 
 def unloaded_evidence(
@@ -137,6 +142,7 @@ def _evidence(
     image, valid = render_panorama(gray, camera, panorama)
     directions, weights, columns, rows = _edge_points(image.astype(np.float32), valid, panorama)
     lines, regions, ratios, scatter = [], [], [], []
+    rivals = 0
     for segment in segments:
         pixels = panorama.pixels_from_directions(_unit(segment))
         band_px = config.band / panorama.pixel_size()
@@ -154,14 +160,16 @@ def _evidence(
         if line is not None:
             spread = corrected[line.inliers] @ line.normal
             scatter.append(float(np.std(spread)) / math.sqrt(max(line.inliers.sum(), 1)))
+            if _rival_nearby(panorama, corrected, weights[inside], line, lon, config):
+                rivals += 1
         length = max(region[3] - region[2], 1.0)
         ratios.append(0.0 if line is None else min(line.score / length, 1.0))
         if line is not None:
             lines.append(line)
     ratio = float(min(ratios))
     nan = np.full(3, np.nan)
-    if len(lines) < 2 or ratio < config.min_ratio:
-        return PitchEvidence(hypothesis, ratio, False, math.nan, nan, panorama, regions, lines)
+    if len(lines) < 2 or ratio < config.min_ratio or rivals:
+        return PitchEvidence(hypothesis, ratio, False, math.nan, nan, panorama, regions, lines, math.nan, rivals > 0)
     try:
         direction = common_direction(lines[0].normal, lines[1].normal, predicted)
     except ValueError:
@@ -169,6 +177,23 @@ def _evidence(
     pitch = _pitch_from_direction(camera_in_fork.apply_direction(direction), pallet_in_fork, hypothesis)
     sigma = math.hypot(*scatter)
     return PitchEvidence(hypothesis, ratio, True, pitch, direction, panorama, regions, lines, sigma)
+
+
+def _rival_nearby(
+    panorama: Panorama,
+    directions: Array,
+    weights: Array,
+    line: SphereLine,
+    lon: tuple[float, float],
+    config: PitchConfig,
+) -> bool:
+    """Whether another line, at least half as strong, runs within a few pixels of ``line``."""
+    gap = config.rival_gap * panorama.pixel_size()
+    distance = np.abs(directions @ line.normal)
+    others = distance > 2.0 * panorama.pixel_size()
+    nearby = others & (distance < gap)
+    rival = hough_line(panorama, directions[nearby], weights[nearby], lon, tau_max=config.tau_max)
+    return rival is not None and rival.score >= 0.5 * line.score
 
 
 def _pitch_from_direction(direction_f: Array, pallet_in_fork: Transform, hypothesis: str) -> float:
