@@ -48,54 +48,80 @@ class Hits:
     local: Array
 
 
-def cast(objects: list[Box | Plane], origins: Array, directions: Array, candidates: list[int]) -> Hits:
-    """Intersect rays (N, 3) with the objects whose indices are in ``candidates``."""
+def cast(objects: list[Box | Plane], origins: Array, directions: Array, pixels: Array, rects: list) -> Hits:
+    """Nearest hits of rays (N, 3) cast through image positions ``pixels`` (N, 2).
+
+    An object is intersected only by the rays whose pixel lies in its screen rectangle ``rects[i]``
+    (None: all rays), so the cost grows with the area objects cover, not with their number.
+    """
     n = len(origins)
-    hits = Hits(np.full(n, np.inf), np.full(n, -1, np.int32), np.zeros((n, 3)), np.zeros((n, 3)))
-    for i in candidates:
-        obj = objects[i]
-        R, c = obj.pose.rotation, obj.pose.translation
-        o = (origins - c) @ R
-        d = directions @ R
-        if isinstance(obj, Plane):
-            t, local_normal = _plane(o, d)
+    distance, index, face = np.full(n, np.inf), np.full(n, -1, np.int32), np.zeros(n, np.int8)
+    # (3, N) layout: the per-object rotation becomes one BLAS product on contiguous rows
+    all_o, all_d = np.ascontiguousarray(origins.T), np.ascontiguousarray(directions.T)
+    for i, obj in enumerate(objects):
+        rect = rects[i]
+        if rect is None:
+            rows, o, d = slice(None), all_o, all_d
         else:
-            t, local_normal = _box(o, d, obj.half)
-        closer = t < hits.distance
-        if not closer.any():
+            u, v = pixels[:, 0], pixels[:, 1]
+            rows = np.flatnonzero((u >= rect[0]) & (u <= rect[2]) & (v >= rect[1]) & (v <= rect[3]))
+            if not rows.size:
+                continue
+            o, d = all_o[:, rows], all_d[:, rows]
+        R, c = obj.pose.rotation, obj.pose.translation
+        o = R.T @ (o - c[:, None])
+        d = R.T @ d
+        t, f = _plane(o, d) if isinstance(obj, Plane) else _box(o, d, obj.half)
+        closer = t < distance[rows]
+        rows = np.flatnonzero(closer) if rect is None else rows[closer]
+        distance[rows], index[rows], face[rows] = t[closer], i, f[closer]
+    return _surface(objects, all_o, all_d, distance, index, face)
+
+
+def _surface(objects: list, origins: Array, directions: Array, distance: Array, index: NDArray, face: NDArray) -> Hits:
+    """Camera-frame normals and object-frame points of the nearest hits of rays given as (3, N) arrays;
+    ``face`` = 2 * axis + (sign > 0)."""
+    n = origins.shape[1]
+    normal, local = np.zeros((n, 3)), np.zeros((n, 3))
+    order = np.argsort(index, kind="stable")  # group rays by object in one sort, not one scan per object
+    ids, starts = np.unique(index[order], return_index=True)
+    for i, rows in zip(ids, np.split(order, starts[1:]), strict=True):
+        if i < 0:
             continue
-        hits.distance[closer] = t[closer]
-        hits.index[closer] = i
-        hits.normal[closer] = local_normal[closer] @ R.T
-        hits.local[closer] = o[closer] + t[closer, None] * d[closer]
-    return hits
+        R, c = objects[i].pose.rotation, objects[i].pose.translation
+        local[rows] = (R.T @ (origins[:, rows] - c[:, None] + distance[rows] * directions[:, rows])).T
+        axis = face[rows] // 2
+        local_normal = np.zeros((len(rows), 3))
+        local_normal[np.arange(len(rows)), axis] = np.where(face[rows] % 2 == 1, 1.0, -1.0)
+        normal[rows] = local_normal @ R.T
+    return Hits(distance, index, normal, local)
 
 
-def _plane(o: Array, d: Array) -> tuple[Array, Array]:
+def _plane(o: Array, d: Array) -> tuple[Array, NDArray[np.int8]]:
+    """Distance along rays (3, N layout, plane frame) to the plane z = 0, and the face code of its normal."""
     with np.errstate(divide="ignore", invalid="ignore"):
-        t = -o[:, 2] / d[:, 2]
+        t = -o[2] / d[2]
     t = np.where((t > 1e-6) & np.isfinite(t), t, np.inf)
-    normal = np.zeros_like(o)
-    normal[:, 2] = np.where(o[:, 2] >= 0, 1.0, -1.0)
-    return t, normal
+    return t, np.where(o[2] >= 0, 5, 4).astype(np.int8)
 
 
-def _box(o: Array, d: Array, half: Array) -> tuple[Array, Array]:
+def _box(o: Array, d: Array, half: Array) -> tuple[Array, NDArray[np.int8]]:
+    """Slab test of rays (3, N layout, box frame) against the box ``|p| <= half``: entry distance and face."""
     with np.errstate(divide="ignore", invalid="ignore"):
         inv = 1.0 / d
-        t0 = (-half - o) * inv
-        t1 = (half - o) * inv
+        t0 = (-half[:, None] - o) * inv
+        t1 = (half[:, None] - o) * inv
     near = np.minimum(t0, t1)
     far = np.maximum(t0, t1)
     near = np.where(np.isnan(near), -np.inf, near)
     far = np.where(np.isnan(far), np.inf, far)
-    axis = np.argmax(near, axis=1)
-    t_near = near[np.arange(len(o)), axis]
-    t_far = np.min(far, axis=1)
-    hit = (t_near <= t_far) & (t_near > 1e-6)
-    normal = np.zeros_like(o)
-    normal[np.arange(len(o)), axis] = -np.sign(d[np.arange(len(o)), axis])
-    return np.where(hit, t_near, np.inf), normal
+    axis = np.argmax(near, axis=0)
+    cols = np.arange(o.shape[1])
+    t_near = near[axis, cols]
+    hit = (t_near <= far.min(axis=0)) & (t_near > 1e-6)
+    # the entry face's outward normal opposes the ray
+    face = 2 * axis + (d[axis, cols] < 0)
+    return np.where(hit, t_near, np.inf), face.astype(np.int8)
 
 
 def screen_rectangles(camera: CameraModel, objects: list[Box | Plane], margin: float = 3.0) -> list[Array | None]:

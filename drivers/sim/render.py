@@ -279,26 +279,26 @@ def _trace(
     height, width = camera.height, camera.width
     image = np.zeros((height, width, 3))
     surface = np.full((height, width), -1, np.int64)
+    vignetting = np.zeros((height, width))
     rects = screen_rectangles(camera, objects)
     lights = _lights(objects)
-    for rows, pixels, where in _bands(camera):
-        colour, key = _sample(camera, objects, pallets, lights, rects, pixels, np.zeros((1, 2)), shade)
+    bands = list(_bands(camera))
+    for rows, pixels, where in bands:
+        colour, key, directions = _sample(camera, objects, pallets, lights, rects, pixels, np.zeros((1, 2)), shade)
         image[rows][where] = colour
         surface[rows][where] = key
+        vignetting[rows][where] = _vignetting(camera, directions) if shade is _shade else 1.0
     boundary = np.zeros_like(surface, bool)
     for axis in (0, 1):
         change = np.diff(surface, axis=axis) != 0
         boundary |= np.pad(change, [(0, 1) if a == axis else (0, 0) for a in (0, 1)])
         boundary |= np.pad(change, [(1, 0) if a == axis else (0, 0) for a in (0, 1)])
-    for rows, pixels, where in _bands(camera):
+    for rows, pixels, where in bands:
         edge = boundary[rows][where]
         if edge.any():
-            colour, _ = _sample(camera, objects, pallets, lights, rects, pixels[edge], offsets, shade)
+            colour, _, _ = _sample(camera, objects, pallets, lights, rects, pixels[edge], offsets, shade)
             band = image[rows]
             band[np.nonzero(where)[0][edge], np.nonzero(where)[1][edge]] = colour
-    vignetting = np.zeros((height, width))
-    for rows, pixels, where in _bands(camera):
-        vignetting[rows][where] = _vignetting(camera, pixels) if shade is _shade else 1.0
     return image * (light * vignetting)[:, :, None]
 
 
@@ -314,22 +314,29 @@ def _bands(camera: CameraModel):
             yield rows, centres[inside], inside.reshape(uu.shape)
 
 
-def _sample(camera, objects, pallets, lights, rects, pixels: Array, offsets: Array, shade) -> tuple[Array, NDArray]:
-    """Mean colour over sub-pixel ``offsets`` and the surface key (object, face) of the last sample."""
+def _sample(
+    camera, objects, pallets, lights, rects, pixels: Array, offsets: Array, shade
+) -> tuple[Array, NDArray, Array]:
+    """Mean colour over sub-pixel ``offsets``, the surface key (object, face) and the ray directions of
+    the last sample."""
     low, high = pixels.min(axis=0) - 1, pixels.max(axis=0) + 1
+    # objects whose rectangle misses these pixels altogether are dropped before any per-ray work
     candidates = [
         i
         for i, r in enumerate(rects)
         if r is None or (r[0] <= high[0] and r[2] >= low[0] and r[1] <= high[1] and r[3] >= low[1])
     ]
+    subset = [objects[i] for i in candidates]
+    subset_rects = [rects[i] for i in candidates]
     colour = np.zeros((len(pixels), 3))
     for offset in offsets:
         origins, directions = camera.unproject(pixels + offset)
-        hits = cast(objects, origins, directions, candidates)
+        hits = cast(subset, origins, directions, pixels + offset, subset_rects)
+        hits.index = np.where(hits.index >= 0, np.asarray(candidates + [-1])[hits.index], -1).astype(np.int32)
         colour += shade(objects, pallets, hits, origins, directions, lights)
     axis = np.argmax(np.abs(hits.normal), axis=1)
     face = axis * 2 + (hits.normal[np.arange(len(axis)), axis] > 0)
-    return colour / len(offsets), hits.index.astype(np.int64) * 8 + face
+    return colour / len(offsets), hits.index.astype(np.int64) * 8 + face, directions
 
 
 def _lights(objects: list) -> list[tuple[Array, float]]:
@@ -420,8 +427,7 @@ def _texture(obj: Box | Plane, local: Array, index: int) -> Array:
     return np.ones(len(local))
 
 
-def _vignetting(camera: CameraModel, pixels: Array) -> Array:
-    _, directions = camera.unproject(pixels)
+def _vignetting(camera: CameraModel, directions: Array) -> Array:
     incidence = np.arccos(np.clip(directions[:, 0], -1.0, 1.0))
     return 1.0 - 0.35 * (incidence / camera.max_incidence) ** 2
 

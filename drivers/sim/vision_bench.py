@@ -25,7 +25,7 @@ from agf.geometry import Transform
 from agf.pallets import load_pallets
 from agf.paths import DEFAULT_CONFIG, repo_path
 from agf.scene import Scene, load_scene
-from agf.vision.calibration import Panel, fit_panel
+from agf.vision.calibration import WITHOUT_SHIFT, Panel, fit_panel
 from agf.vision.face_model import face_model_from_pallet
 from agf.vision.measure import measure_pallet
 from agf.vision.pallet_pose import estimate_pallet_pose
@@ -154,7 +154,9 @@ def calibrate_accuracy(quick: bool) -> dict[str, Any]:
         start = time.perf_counter()
         fit = fit_panel(image, camera, panel, config.forks, nominal)
         ms.append((time.perf_counter() - start) * 1e3)
-        naive = fit_panel(image, camera.without_viewpoint_shift(), panel, config.forks, nominal)
+        naive = fit_panel(
+            image, camera.without_viewpoint_shift(), panel, config.forks, fit.camera_in_fork, WITHOUT_SHIFT
+        )
         e, t = fit.camera_in_fork.to_dict(), truth.to_dict()
         mm.append(max(abs(e[k] - t[k]) for k in ("x_mm", "y_mm", "z_mm")))
         deg.append(max(abs(e[k] - t[k]) for k in ("roll_deg", "pitch_deg", "yaw_deg")))

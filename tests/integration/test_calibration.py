@@ -16,7 +16,7 @@ from agf.errors import MeasurementError
 from agf.geometry import Transform
 from agf.paths import DEFAULT_CONFIG
 from agf.scene import load_scene
-from agf.vision.calibration import Panel, calibrate, fit_panel
+from agf.vision.calibration import WITHOUT_SHIFT, Panel, calibrate, fit_panel
 from drivers.sim.render import render
 from tests.integration.conftest import SCENES
 
@@ -36,16 +36,20 @@ def mounted(seed: int) -> Transform:
 @pytest.fixture(scope="module")
 def panel_images():
     truths = [mounted(seed) for seed in (1, 2, 3)]
-    images = [cv2.cvtColor(render(dataclasses.replace(BASE, camera_in_fork=t, seed=i), CAMERA)[0], cv2.COLOR_BGR2GRAY)
-              for i, t in enumerate(truths)]
+    images = [
+        cv2.cvtColor(render(dataclasses.replace(BASE, camera_in_fork=t, seed=i), CAMERA)[0], cv2.COLOR_BGR2GRAY)
+        for i, t in enumerate(truths)
+    ]
     return truths, images
 
 
 def pose_error(estimate: Transform, truth: Transform) -> tuple[float, float]:
     """Largest translation error (mm) and largest Euler-angle error (deg)."""
     e, t = estimate.to_dict(), truth.to_dict()
-    return (max(abs(e[k] - t[k]) for k in ("x_mm", "y_mm", "z_mm")),
-            max(abs(e[k] - t[k]) for k in ("roll_deg", "pitch_deg", "yaw_deg")))
+    return (
+        max(abs(e[k] - t[k]) for k in ("x_mm", "y_mm", "z_mm")),
+        max(abs(e[k] - t[k]) for k in ("roll_deg", "pitch_deg", "yaw_deg")),
+    )
 
 
 def test_each_mount_is_recovered_within_2mm_and_005deg(panel_images):
@@ -59,7 +63,9 @@ def test_each_mount_is_recovered_within_2mm_and_005deg(panel_images):
 def test_ignoring_the_viewpoint_shift_biases_the_height(panel_images):
     truths, images = panel_images
     shifted = fit_panel(images[0], CAMERA, PANEL, CONFIG.forks, NOMINAL)
-    naive = fit_panel(images[0], CAMERA.without_viewpoint_shift(), PANEL, CONFIG.forks, NOMINAL)
+    naive = fit_panel(
+        images[0], CAMERA.without_viewpoint_shift(), PANEL, CONFIG.forks, shifted.camera_in_fork, WITHOUT_SHIFT
+    )
     bias = naive.camera_in_fork.translation[2] - truths[0].translation[2]
     assert abs(shifted.camera_in_fork.translation[2] - truths[0].translation[2]) < 0.002
     assert abs(bias) > 0.005  # paper Table 1: about 10 mm of height
@@ -67,8 +73,10 @@ def test_ignoring_the_viewpoint_shift_biases_the_height(panel_images):
 
 def test_images_of_one_mount_combine_and_an_outlier_is_rejected(panel_images):
     truths, images = panel_images
-    same = [cv2.cvtColor(render(dataclasses.replace(BASE, camera_in_fork=truths[0], seed=s), CAMERA)[0],
-                         cv2.COLOR_BGR2GRAY) for s in (21, 22)]
+    same = [
+        cv2.cvtColor(render(dataclasses.replace(BASE, camera_in_fork=truths[0], seed=s), CAMERA)[0], cv2.COLOR_BGR2GRAY)
+        for s in (21, 22)
+    ]
     result = calibrate([images[0], *same, images[1]], CAMERA, PANEL, CONFIG.forks, NOMINAL)
     mm, deg = pose_error(result.camera_in_fork, truths[0])
     assert mm <= 2.0 and deg <= 0.05
@@ -99,3 +107,13 @@ def test_tools_calibrate_writes_yaml_json_and_overlay_and_never_overwrites(panel
     assert "--force" in json.loads(capsys.readouterr().out)["error"]
     assert main([*args, "--force"]) == 0
     assert math.isfinite(json.loads(capsys.readouterr().out)["residual_px"])
+
+
+def test_regression_mount_that_converged_to_a_wrong_pose_with_one_grid_start():
+    """Mount seed 0 (roll -2.9, pitch 1.9, yaw 2.5 deg) once ended 59 mm and 2.1 deg off with a 0.6 px
+    residual from the single best grid node; several starts and stricter acceptance fix it."""
+    truth = mounted(0)
+    image = cv2.cvtColor(render(dataclasses.replace(BASE, camera_in_fork=truth, seed=0), CAMERA)[0], cv2.COLOR_BGR2GRAY)
+    fit = fit_panel(image, CAMERA, PANEL, CONFIG.forks, NOMINAL)
+    mm, deg = pose_error(fit.camera_in_fork, truth)
+    assert mm <= 2.0 and deg <= 0.05, (mm, deg)
