@@ -17,8 +17,6 @@ import numpy as np
 
 from agf.geometry import Transform, matrix_from_euler
 
-AXES = ("lift", "reach", "tilt", "side_shift")
-
 
 @dataclass(frozen=True)
 class MastGeometry:
