@@ -46,5 +46,5 @@ def pick(quick: bool) -> dict[str, Any]:
         "inserted": ok,
         "frame_to_motion_ms": {"median": statistics.median(frame_to_motion), "max": max(frame_to_motion)},
         "cycle_s": {"median": statistics.median(cycles), "max": max(cycles)},
-        "note": "cycle_s includes rendering two 1920 x 1920 frames (about 8 s each), which a camera does not take",
+        "note": "cycle_s includes rendering two 1920 x 1920 frames (render.frame_s each), which a camera does not take",
     }

@@ -1,8 +1,8 @@
-"""Ray casting of boxes and planes through a camera model, tile by tile (the renderer's core).
+"""Ray casting of boxes and planes through a camera model, band by band (the renderer's core).
 
 Each pixel's sub-samples become rays (origins and directions from ``camera.unproject``, so the
-viewpoint shift is exact); every object is intersected only by the rays of the tiles its projected
-bounding rectangle touches. The nearest hit per ray keeps the object's index, the surface normal
+viewpoint shift is exact); every object is intersected only by the rays whose pixels lie in its
+projected bounding rectangle. The nearest hit per ray keeps the object's index, the surface normal
 and the hit point in the object's own frame, from which the shader computes colour.
 """
 
