@@ -57,7 +57,7 @@ def cast(objects: list[Box | Plane], origins: Array, directions: Array, pixels: 
     n = len(origins)
     distance, index, face = np.full(n, np.inf), np.full(n, -1, np.int32), np.zeros(n, np.int8)
     # (3, N) layout: the per-object rotation becomes one BLAS product on contiguous rows
-    all_o, all_d = np.ascontiguousarray(origins.T), np.ascontiguousarray(directions.T)
+    all_o, all_d = np.ascontiguousarray(origins.T, np.float32), np.ascontiguousarray(directions.T, np.float32)
     for i, obj in enumerate(objects):
         rect = rects[i]
         if rect is None:
@@ -68,10 +68,10 @@ def cast(objects: list[Box | Plane], origins: Array, directions: Array, pixels: 
             if not rows.size:
                 continue
             o, d = all_o[:, rows], all_d[:, rows]
-        R, c = obj.pose.rotation, obj.pose.translation
+        R, c = obj.pose.rotation.astype(np.float32), obj.pose.translation.astype(np.float32)
         o = R.T @ (o - c[:, None])
         d = R.T @ d
-        t, f = _plane(o, d) if isinstance(obj, Plane) else _box(o, d, obj.half)
+        t, f = _plane(o, d) if isinstance(obj, Plane) else _box(o, d, obj.half.astype(np.float32))
         closer = t < distance[rows]
         rows = np.flatnonzero(closer) if rect is None else rows[closer]
         distance[rows], index[rows], face[rows] = t[closer], i, f[closer]
@@ -111,17 +111,16 @@ def _box(o: Array, d: Array, half: Array) -> tuple[Array, NDArray[np.int8]]:
         inv = 1.0 / d
         t0 = (-half[:, None] - o) * inv
         t1 = (half[:, None] - o) * inv
-    near = np.minimum(t0, t1)
-    far = np.maximum(t0, t1)
-    near = np.where(np.isnan(near), -np.inf, near)
-    far = np.where(np.isnan(far), np.inf, far)
-    axis = np.argmax(near, axis=0)
-    cols = np.arange(o.shape[1])
-    t_near = near[axis, cols]
-    hit = (t_near <= far.min(axis=0)) & (t_near > 1e-6)
+    # fmin/fmax drop the NaN of a ray lying exactly in a slab's bounding plane (0 * inf)
+    near = np.fmin(t0, t1)
+    t_near = near.max(axis=0)
+    hit = (t_near <= np.fmax(t0, t1).min(axis=0)) & (t_near > 1e-6)
+    cols = np.flatnonzero(hit)
+    axis = np.argmax(near[:, cols], axis=0)
+    face = np.zeros(o.shape[1], np.int8)
     # the entry face's outward normal opposes the ray
-    face = 2 * axis + (d[axis, cols] < 0)
-    return np.where(hit, t_near, np.inf), face.astype(np.int8)
+    face[cols] = 2 * axis + (d[axis, cols] < 0)
+    return np.where(hit, t_near, np.inf), face
 
 
 def screen_rectangles(camera: CameraModel, objects: list[Box | Plane], margin: float = 3.0) -> list[Array | None]:

@@ -1,7 +1,7 @@
 """The simulated camera: fisheye frames of a scene file, with exact ground truth (``agf render``).
 
 Geometry comes from the scene file and the pallet catalogue (frame P, DESIGN.md); every pixel's
-four stratified sub-samples are rays through the camera model, viewpoint shift included, cast
+four sub-samples (a rotated grid) are rays through the camera model, viewpoint shift included, cast
 against boxes and planes (:mod:`drivers.sim.raycast`). Shading: diffuse light from two lamps and an
 ambient term, darkened inside pallet pockets (ambient occlusion: pockets are dark holes),
 procedural wood grain, cardboard with tape seams, concrete, vignetting; then blur, sensor noise and
@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -20,6 +22,7 @@ from typing import Any, Literal
 import cv2
 import numpy as np
 from numpy.typing import NDArray
+from threadpoolctl import threadpool_limits
 
 from agf.camera import CameraModel, load_camera
 from agf.config import ForkGeometry
@@ -32,6 +35,7 @@ from drivers.sim.raycast import Box, Plane, cast, screen_rectangles
 Array = NDArray[np.float64]
 CATALOGUE = repo_path("configs/pallets.yaml")
 BAND_ROWS = 48
+WORKERS = len(os.sched_getaffinity(0))
 SKY = 0.62  # albedo-like brightness of rays that hit nothing (a bright hall)
 
 # material -> (albedo, BGR tint)
@@ -271,35 +275,20 @@ def _subpixel_offsets(samples: int) -> Array:
 def _trace(
     camera: CameraModel, objects: list, pallets: list[_Pallet], offsets: Array, light: float, shade: Callable
 ) -> Array:
-    """Shade every pixel centre, then re-shade with all sub-samples the pixels on a surface boundary.
-
-    Anti-aliasing only where a pixel's surface differs from a neighbour's keeps the cost near one ray
-    per pixel while edges, the only thing sub-pixel accuracy depends on, get every sample.
-    """
-    height, width = camera.height, camera.width
-    image = np.zeros((height, width, 3))
-    surface = np.full((height, width), -1, np.int64)
-    vignetting = np.zeros((height, width))
+    """Every pixel's colour: the mean over all its sub-sample rays, band by band on one thread per core
+    (the array work that dominates releases the GIL)."""
+    image = np.zeros((camera.height, camera.width, 3))
     rects = screen_rectangles(camera, objects)
     lights = _lights(objects)
-    bands = list(_bands(camera))
-    for rows, pixels, where in bands:
-        colour, key, directions = _sample(camera, objects, pallets, lights, rects, pixels, np.zeros((1, 2)), shade)
-        image[rows][where] = colour
-        surface[rows][where] = key
-        vignetting[rows][where] = _vignetting(camera, directions) if shade is _shade else 1.0
-    boundary = np.zeros_like(surface, bool)
-    for axis in (0, 1):
-        change = np.diff(surface, axis=axis) != 0
-        boundary |= np.pad(change, [(0, 1) if a == axis else (0, 0) for a in (0, 1)])
-        boundary |= np.pad(change, [(1, 0) if a == axis else (0, 0) for a in (0, 1)])
-    for rows, pixels, where in bands:
-        edge = boundary[rows][where]
-        if edge.any():
-            colour, _, _ = _sample(camera, objects, pallets, lights, rects, pixels[edge], offsets, shade)
-            band = image[rows]
-            band[np.nonzero(where)[0][edge], np.nonzero(where)[1][edge]] = colour
-    return image * (light * vignetting)[:, :, None]
+
+    def band(rows: slice, pixels: Array, where: NDArray[np.bool_]) -> None:
+        image[rows][where] = _sample(camera, objects, pallets, lights, rects, pixels, offsets, shade)
+
+    # one BLAS thread per band thread: OpenBLAS's own threads on small products only contend
+    with threadpool_limits(1, user_api="blas"), ThreadPoolExecutor(max_workers=WORKERS) as pool:
+        for future in [pool.submit(band, *args) for args in _bands(camera)]:
+            future.result()
+    return image * light
 
 
 def _bands(camera: CameraModel):
@@ -314,11 +303,8 @@ def _bands(camera: CameraModel):
             yield rows, centres[inside], inside.reshape(uu.shape)
 
 
-def _sample(
-    camera, objects, pallets, lights, rects, pixels: Array, offsets: Array, shade
-) -> tuple[Array, NDArray, Array]:
-    """Mean colour over sub-pixel ``offsets``, the surface key (object, face) and the ray directions of
-    the last sample."""
+def _sample(camera, objects, pallets, lights, rects, pixels: Array, offsets: Array, shade) -> Array:
+    """Mean colour (N, 3) of pixels over the sub-pixel ``offsets``, vignetting included when shading photos."""
     low, high = pixels.min(axis=0) - 1, pixels.max(axis=0) + 1
     # objects whose rectangle misses these pixels altogether are dropped before any per-ray work
     candidates = [
@@ -333,10 +319,11 @@ def _sample(
         origins, directions = camera.unproject(pixels + offset)
         hits = cast(subset, origins, directions, pixels + offset, subset_rects)
         hits.index = np.where(hits.index >= 0, np.asarray(candidates + [-1])[hits.index], -1).astype(np.int32)
-        colour += shade(objects, pallets, hits, origins, directions, lights)
-    axis = np.argmax(np.abs(hits.normal), axis=1)
-    face = axis * 2 + (hits.normal[np.arange(len(axis)), axis] > 0)
-    return colour / len(offsets), hits.index.astype(np.int64) * 8 + face, directions
+        sample = shade(objects, pallets, hits, origins, directions, lights)
+        if shade is _shade:
+            sample *= _vignetting(camera, directions)[:, None]
+        colour += sample
+    return colour / len(offsets)
 
 
 def _lights(objects: list) -> list[tuple[Array, float]]:
@@ -367,11 +354,13 @@ def _shade(objects, pallets, hits, origins, directions, lights) -> Array:
     irradiance *= _pocket_occlusion(points, pallets)
     albedo = np.empty(len(idx))
     tint = np.empty((len(idx), 3))
-    for i in np.unique(idx):
-        sel = idx == i
+    local = hits.local[hit]
+    order = np.argsort(idx, kind="stable")  # group hits by object in one sort, not one scan per object
+    ids, starts = np.unique(idx[order], return_index=True)
+    for i, sel in zip(ids, np.split(order, starts[1:]), strict=True):
         obj = objects[i]
         base, tone = MATERIALS[obj.material]
-        albedo[sel] = base * _texture(obj, hits.local[hit][sel], i)
+        albedo[sel] = base * _texture(obj, local[sel], i)
         tint[sel] = tone
     colour[hit] = 255.0 * (albedo * irradiance)[:, None] * tint
     return colour
@@ -437,7 +426,7 @@ def _sensor(image: Array, scene: Scene, rng: np.random.Generator) -> NDArray[np.
     if noise.blur_px > 0:
         image = cv2.GaussianBlur(image, (0, 0), noise.blur_px)
     if noise.sigma > 0:
-        image = image + rng.normal(0.0, noise.sigma, image.shape)
+        image = image + noise.sigma * rng.standard_normal(image.shape, dtype=np.float32)
     out = np.clip(np.round(image), 0, 255).astype(np.uint8)
     if noise.jpeg_quality is not None:
         ok, data = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, noise.jpeg_quality])

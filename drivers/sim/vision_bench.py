@@ -62,7 +62,7 @@ def _keys(quick: bool) -> list[str]:
 
 @bench_case("render.frame_s", "vision_ms")
 def render_frame(quick: bool) -> dict[str, Any]:
-    """One 1920 x 1920 frame, 4 samples on every surface boundary (budget 5 s)."""
+    """One 1920 x 1920 frame, 4 samples per pixel (budget 5 s on 2 cores)."""
     scene = load_scene(SCENES / "paper/loaded-low-flat.yaml")
     samples = time_calls(lambda: render.render(scene), repeats=1 if quick else 3, warmup=0)
     return timing_summary(samples, scale=1.0)
