@@ -83,7 +83,11 @@ def _cmd_simulate(args: argparse.Namespace, config: Config) -> dict[str, Any]:
     if args.random is not None and args.random <= 0:
         raise InputError(f"--random: expected a positive number of runs, got {args.random}")
     scene = _existing_file(args.scene) if args.scene else None
-    return _plugin(config, "simulate")(config, scene=scene, runs=args.random, seed=args.seed, plots=args.plots)
+    if args.jobs is not None and args.jobs <= 0:
+        raise InputError(f"--jobs: expected a positive number of picks side by side, got {args.jobs}")
+    return _plugin(config, "simulate")(
+        config, scene=scene, runs=args.random, seed=args.seed, plots=args.plots, jobs=args.jobs
+    )
 
 
 def _cmd_run(args: argparse.Namespace, config: Config) -> dict[str, Any]:
@@ -147,6 +151,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--random", type=int, metavar="N", help="number of random scenes")
     p.add_argument("--seed", type=int, default=1, help="seed of the random scenes (default: %(default)s)")
     p.add_argument("--plots", metavar="DIR", help="write plots (PNG) here")
+    p.add_argument("--jobs", type=int, metavar="J", help="picks run side by side (default: one per core)")
     p.set_defaults(handler=_cmd_simulate)
 
     p = sub.add_parser("bench", parents=[common], help="speed and accuracy figures")

@@ -14,6 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from agf.camera.base import CameraModel
+from agf.errors import InputError
 from agf.geometry import Transform
 from agf.pallets import PalletType
 from agf.vision.face_model import face_model_from_pallet
@@ -173,6 +174,8 @@ def measurement_overlay(
 
 
 def write_png(path: Path, image: NDArray) -> None:
+    if path.suffix.lower() != ".png":
+        raise InputError(f"{path}: expected a file name ending in .png")
     path.parent.mkdir(parents=True, exist_ok=True)
     if not cv2.imwrite(str(path), image):
         raise OSError(f"{path}: could not write the PNG")

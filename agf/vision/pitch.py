@@ -41,6 +41,8 @@ class PitchConfig:
     load_search: float = 0.25  # m: how much narrower than the pallet a load may be, each side
     load_height: float = 0.4  # m of load edge expected above the deck
     rival_gap: float = 12.0  # panorama pixels: a parallel line this close to an edge makes it ambiguous
+    anchor_tolerance: float = 5.0  # panorama pixels: an edge this close to the point the pose pins ...
+    anchor_gap: float = 3.0  # ... beats a rival that misses that point by this many pixels more
 
 
 @dataclass(frozen=True)
@@ -97,7 +99,7 @@ def unloaded_evidence(
     segments = [
         np.c_[x, np.full_like(x, side * pallet.width / 2), np.full_like(x, pallet.deck_top)] for side in (-1, 1)
     ]
-    return _evidence("unloaded", gray, camera, camera_in_fork, pallet_in_fork, segments, 0, config)
+    return _evidence("unloaded", gray, camera, camera_in_fork, pallet_in_fork, segments, 0, config, anchored=True)
 
 
 def loaded_evidence(
@@ -134,7 +136,10 @@ def _evidence(
     segments_p: list[Array],
     axis_index: int,
     config: PitchConfig,
+    anchored: bool = False,
 ) -> PitchEvidence:
+    """Edges along ``segments_p`` (pallet frame, parallel to pallet axis ``axis_index``); ``anchored``
+    when each segment's first point is a model point the pose pins (the deck's front corners)."""
     pallet_in_camera = camera_in_fork.inverse() @ pallet_in_fork
     predicted = pallet_in_camera.rotation[:, axis_index]
     segments = [pallet_in_camera.apply(s) for s in segments_p]
@@ -160,7 +165,9 @@ def _evidence(
         if line is not None:
             spread = corrected[line.inliers] @ line.normal
             scatter.append(float(np.std(spread)) / math.sqrt(max(line.inliers.sum(), 1)))
-            if _rival_nearby(panorama, corrected, weights[inside], line, lon, config):
+            rival = _rival_nearby(panorama, corrected, weights[inside], line, lon, config)
+            anchor = _unit(segment[:1])[0] if anchored else None
+            if rival is not None and not _anchor_decides(line, rival, anchor, panorama, config):
                 rivals += 1
         length = max(region[3] - region[2], 1.0)
         ratios.append(0.0 if line is None else min(line.score / length, 1.0))
@@ -186,14 +193,30 @@ def _rival_nearby(
     line: SphereLine,
     lon: tuple[float, float],
     config: PitchConfig,
-) -> bool:
-    """Whether another line, at least half as strong, runs within a few pixels of ``line``."""
+) -> SphereLine | None:
+    """Another line, at least half as strong, within a few pixels of ``line``, if there is one."""
     gap = config.rival_gap * panorama.pixel_size()
     distance = np.abs(directions @ line.normal)
     others = distance > 2.0 * panorama.pixel_size()
     nearby = others & (distance < gap)
     rival = hough_line(panorama, directions[nearby], weights[nearby], lon, tau_max=config.tau_max)
-    return rival is not None and rival.score >= 0.5 * line.score
+    return rival if rival is not None and rival.score >= 0.5 * line.score else None
+
+
+def _anchor_decides(
+    line: SphereLine, rival: SphereLine, anchor: Array | None, panorama: Panorama, config: PitchConfig
+) -> bool:
+    """Whether the point the pose pins tells the edge from its rival.
+
+    The deck edge must pass through the deck's front corner, which the pose puts within a pixel or
+    two; a bed seam or a neighbour's edge beside it misses that corner, a shadow hugging the edge
+    does not, so a rival closer than ``anchor_gap`` to the corner still makes the edge ambiguous.
+    """
+    if anchor is None:
+        return False
+    pixel = panorama.pixel_size()
+    miss_line, miss_rival = abs(anchor @ line.normal) / pixel, abs(anchor @ rival.normal) / pixel
+    return miss_line <= config.anchor_tolerance and miss_rival - miss_line >= config.anchor_gap
 
 
 def _pitch_from_direction(direction_f: Array, pallet_in_fork: Transform, hypothesis: str) -> float:

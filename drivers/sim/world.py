@@ -9,9 +9,14 @@ solid parts: a negative clearance is a collision, counted, never hidden.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import functools
 import math
+import multiprocessing
+import os
 import statistics
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -149,6 +154,15 @@ def pick_summary(result: PickResult, world: SimulatedWorld) -> dict[str, Any]:
     }
 
 
+def _pick(config: Config, scene: Scene) -> dict[str, Any]:
+    """One whole pick in a world of its own, summarised by :func:`pick_summary`."""
+    try:
+        with SimulatedWorld(config, scene) as world:
+            return pick_summary(world.controller().run(), world)
+    except MeasurementError as exc:
+        return {"ok": False, "reason": str(exc), "collision": False, "min_clearance_mm": math.inf}
+
+
 def run_command(config: Config, *, plots: str | None = None, progress: bool = True) -> dict[str, Any]:
     """``agf run`` on the simulated world: one pick of the scene ``simulation.scene`` names."""
     scene_path = repo_path((config.sections.get("simulation") or {}).get("scene", "configs/scenes/pick.yaml"))
@@ -192,22 +206,36 @@ def random_scene(rng: np.random.Generator, base: Scene) -> Scene:
 
 
 def simulate_command(
-    config: Config, *, scene: Path | None, runs: int | None, seed: int, plots: str | None = None
+    config: Config,
+    *,
+    scene: Path | None,
+    runs: int | None,
+    seed: int,
+    plots: str | None = None,
+    jobs: int | None = None,
 ) -> dict[str, Any]:
-    """``agf simulate``: whole picks in the simulated world; collisions and refusals counted."""
+    """``agf simulate``: whole picks in the simulated world; collisions and refusals counted.
+
+    Picks run in real time and mostly wait on their drives, so ``jobs`` of them (default one per core)
+    run side by side, each in its own process with its own virtual CAN bus.
+    """
     base = load_scene(scene or repo_path("configs/scenes/pick.yaml"))
     rng = np.random.default_rng(seed)
     scenes = [base] if runs is None else [random_scene(rng, base) for _ in range(runs)]
-    summaries, failures = [], []
-    for i, s in enumerate(scenes):
-        try:
-            with SimulatedWorld(config, s) as world:
-                summary = pick_summary(world.controller().run(), world)
-        except MeasurementError as exc:
-            summary = {"ok": False, "reason": str(exc), "collision": False, "min_clearance_mm": math.inf}
-        summaries.append(summary)
-        if not summary["ok"]:
-            failures.append({"run": i, "reason": summary["reason"], "pallet_in_fork": s.pallet.in_fork.to_dict()})
+    jobs = min(jobs or len(os.sched_getaffinity(0)), len(scenes))
+    pick = functools.partial(_pick, config)
+    summaries: list[dict[str, Any]] = []
+    with contextlib.ExitStack() as stack:
+        pool = stack.enter_context(multiprocessing.get_context("fork").Pool(jobs)) if jobs > 1 else None
+        for summary in pool.imap(pick, scenes) if pool else map(pick, scenes):
+            summaries.append(summary)
+            done, inserted = len(summaries), sum(s["ok"] for s in summaries)
+            print(f"agf simulate: {done}/{len(scenes)} picks, {inserted} inserted", file=sys.stderr, flush=True)
+    failures = [
+        {"run": i, "reason": summary["reason"], "pallet_in_fork": s.pallet.in_fork.to_dict()}
+        for i, (summary, s) in enumerate(zip(summaries, scenes, strict=True))
+        if not summary["ok"]
+    ]
     inserted = sum(s["ok"] for s in summaries)
     cycles = [s["cycle_s"] for s in summaries if s["ok"]]
     clearances = [s["min_clearance_mm"] for s in summaries if math.isfinite(s["min_clearance_mm"])]

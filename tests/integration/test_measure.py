@@ -110,3 +110,10 @@ def test_agf_measure_refuses_an_image_without_a_pallet(tmp_path, capsys):
     code = main(["measure", str(blank), "--json"])
     result = json.loads(capsys.readouterr().out)
     assert code == 1 and result["ok"] is False and result["error"]
+
+
+def test_bed_seam_beside_a_deck_edge_is_not_a_rival_once_the_corner_decides(rendered):
+    """Regression: a plank seam of the truck bed beside a deck edge made every such pick a refusal."""
+    scene, measurement = measure("robust/bed-seam-beside-deck", rendered)
+    assert within_bounds(errors(scene, measurement)), errors(scene, measurement)
+    assert not measurement.loaded

@@ -12,7 +12,7 @@ from agf.axis import AxisState
 from agf.config import load_config
 from agf.paths import DEFAULT_CONFIG, repo_path
 from agf.scene import load_scene
-from drivers.sim.world import SimulatedWorld, pick_summary
+from drivers.sim.world import SimulatedWorld, pick_summary, simulate_command
 
 CONFIG = load_config(DEFAULT_CONFIG)
 SCENE = load_scene(repo_path("configs/scenes/pick.yaml"))
@@ -93,3 +93,11 @@ def test_operator_stop_mid_motion():
         assert math.isfinite(world.min_clearance)
         controller.reset()  # only an explicit reset leaves FAULT
         assert controller._state() == "idle"
+
+
+def test_simulate_runs_picks_side_by_side_each_on_its_own_bus(capsys):
+    report = simulate_command(CONFIG, scene=None, runs=2, seed=3, jobs=2)
+    assert report["runs"] == 2 and report["collisions"] == 0
+    assert report["inserted"] + len(report["failures"]) == 2
+    assert all(f["reason"] for f in report["failures"])  # a refusal always says why
+    assert "2/2 picks" in capsys.readouterr().err

@@ -3,6 +3,7 @@ import shutil
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from agf.bench import bench_case, run_bench, timing_summary
@@ -79,3 +80,19 @@ def test_timing_summary_orders_samples():
     assert summary["min"] == pytest.approx(1.0) and summary["max"] == pytest.approx(3.0)
     with pytest.raises(ValueError):
         timing_summary([])
+
+
+def test_simulate_refuses_a_non_positive_job_count(capsys):
+    code, payload = run_json(capsys, "simulate", "--random", "2", "--jobs", "0", "--json")
+    assert code == EXIT_USAGE
+    assert "--jobs" in payload["error"]
+
+
+def test_overlay_name_without_png_suffix_is_an_input_error_not_a_traceback(tmp_path):
+    from agf.errors import InputError
+    from agf.viz import write_png
+
+    with pytest.raises(InputError, match=r"overlay.*\.png"):
+        write_png(tmp_path / "overlay", np.zeros((4, 4, 3), np.uint8))
+    write_png(tmp_path / "overlay.png", np.zeros((4, 4, 3), np.uint8))
+    assert (tmp_path / "overlay.png").is_file()
