@@ -43,6 +43,22 @@ class FaceModel:
         image[outside] = 0.5
         return image, y, z
 
+    def cells(self) -> tuple[Array, Array, Array]:
+        """The face as constant rectangles, which is all a template match at any scale needs.
+
+        Returns the rectangles' z edges (R + 1,) from the top down and y edges (C + 1,) from the left
+        (+y), the order in which :meth:`raster` runs, and their values (R, C): 1 wood, 0 pocket.
+        """
+        w = self.width / 2
+        z = np.unique(np.clip(np.r_[self.z_top, self.z_bottom, self.pockets[:, 2:].ravel()], self.z_bottom, self.z_top))
+        y = np.unique(np.clip(np.r_[w, -w, self.pockets[:, :2].ravel()], -w, w))
+        z, y = z[::-1], y[::-1]
+        zc, yc = (z[:-1] + z[1:]) / 2, (y[:-1] + y[1:]) / 2
+        values = np.ones((len(zc), len(yc)))
+        for y0, y1, z0, z1 in self.pockets:
+            values[np.ix_((zc > z0) & (zc < z1), (yc > y0) & (yc < y1))] = 0.0
+        return z, y, values
+
     def edge_points(self, spacing: float, inset: float = 0.012) -> tuple[Array, Array, NDArray[np.int_]]:
         """Points (N, 3) on the pocket boundaries, unit normals (N, 3) pointing from wood into the pocket,
         and each point's edge group (N,): 0 pocket tops, 1 pocket bottoms, 2 pocket sides.
