@@ -37,6 +37,8 @@ class PitchConfig:
     pixel: float = math.radians(0.08)  # panorama resolution, rad per pixel
     band: float = math.radians(4.0)  # half-width of a predicted region around the predicted edge
     tau_max: float = math.radians(9.0)  # largest inclination of an edge against the predicted direction
+    inlier_tolerance: float = 0.8  # panorama pixels: edge points this close to a line are fitted to it; at
+    # 1.5 px the fit took in the gradient of a loaded neighbour's side face and leaned up to 0.5 deg
     min_ratio: float = 0.5  # Hough score / predicted length for a valid hypothesis
     load_search: float = 0.25  # m: how much narrower than the pallet a load may be, each side
     load_height: float = 0.4  # m of load edge expected above the deck
@@ -161,7 +163,7 @@ def _evidence(
             panorama.angles_from_pixels(region[None, [1, 2]])[0][0],
         )
         corrected = _from_reference_viewpoint(camera, directions[inside], segment)
-        line = hough_line(panorama, corrected, weights[inside], lon, tau_max=config.tau_max)
+        line = _line(panorama, corrected, weights[inside], lon, config)
         if line is not None:
             spread = corrected[line.inliers] @ line.normal
             scatter.append(float(np.std(spread)) / math.sqrt(max(line.inliers.sum(), 1)))
@@ -199,8 +201,16 @@ def _rival_nearby(
     distance = np.abs(directions @ line.normal)
     others = distance > 2.0 * panorama.pixel_size()
     nearby = others & (distance < gap)
-    rival = hough_line(panorama, directions[nearby], weights[nearby], lon, tau_max=config.tau_max)
+    rival = _line(panorama, directions[nearby], weights[nearby], lon, config)
     return rival if rival is not None and rival.score >= 0.5 * line.score else None
+
+
+def _line(
+    panorama: Panorama, directions: Array, weights: Array, lon: tuple[float, float], config: PitchConfig
+) -> SphereLine | None:
+    """:func:`~agf.vision.hough.hough_line` with the configured inclination range and inlier distance."""
+    tolerance = config.inlier_tolerance * panorama.pixel_size()
+    return hough_line(panorama, directions, weights, lon, config.tau_max, tolerance=tolerance)
 
 
 def _anchor_decides(

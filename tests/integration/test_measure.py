@@ -117,3 +117,11 @@ def test_bed_seam_beside_a_deck_edge_is_not_a_rival_once_the_corner_decides(rend
     scene, measurement = measure("robust/bed-seam-beside-deck", rendered)
     assert within_bounds(errors(scene, measurement)), errors(scene, measurement)
     assert not measurement.loaded
+
+
+def test_loaded_neighbours_side_face_beside_the_load_edge_does_not_lean_it(rendered):
+    """Regression: a loaded neighbour's side face just beside the load's right edge pulled the edge fit
+    (1.5 px inliers) and the pitch was accepted 0.24 deg off."""
+    scene, measurement = measure("robust/loaded-neighbour-side-face", rendered)
+    assert within_bounds(errors(scene, measurement)), errors(scene, measurement)
+    assert measurement.loaded
