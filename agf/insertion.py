@@ -38,7 +38,7 @@ class InsertionConfig:
     sigmas: float = 3.0
     drive_error_z: float = 0.002
     drive_error_tilt: float = math.radians(0.05)
-    max_yaw: float = math.radians(3.0)
+    max_yaw: float = math.radians(4.0)
 
 
 def tolerance_slacks(dz: float, dtheta: float, pocket_height: float, forks: ForkGeometry) -> np.ndarray:

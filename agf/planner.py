@@ -24,7 +24,7 @@ class PickSettings:
     standoff: float = unit("mm", 0.25)
     depth: float = unit("mm", 0.6)
     sigmas: float = 3.0
-    max_yaw: float = unit("deg", math.radians(3.0))
+    max_yaw: float = unit("deg", math.radians(4.0))
     verify_position: float = unit("mm", 0.01)
     verify_pitch: float = unit("deg", math.radians(0.3))
     # Plans use this share of each drive's velocity, acceleration and jerk limits, so that a late

@@ -249,3 +249,62 @@ def pick_plots(result: Any, folder: Path) -> list[str]:
     path = folder / "pick_axes.png"
     write_png(path, canvas)
     return [str(path)]
+
+
+def fork_path_side_view(outlines: NDArray, clearances: NDArray, pallet: PalletType, path: Path) -> str:
+    """Side view of the fork path through the pocket, with clearances (PNG).
+
+    Parameters
+    ----------
+    outlines : (T, 4, 3) array
+        Per control cycle, the left tine's side outline in the pallet frame P (m): tip top, tip bottom,
+        heel bottom, heel top.
+    clearances : (T,) array
+        The smallest tine-to-pallet clearance of each cycle (m); negative is a collision.
+    pallet : PalletType
+        Gives the deck and bottom band drawn in grey.
+    path : Path
+        The PNG to write.
+
+    The height axis is stretched (the factor is printed) so that millimetres of clearance show against
+    a metre of fork travel.
+    """
+    outlines, clearances = np.asarray(outlines, float), np.asarray(clearances, float)
+    if outlines.ndim != 3 or outlines.shape[1:] != (4, 3) or clearances.shape != outlines.shape[:1]:
+        raise ValueError(f"expected outlines (T, 4, 3) and clearances (T,), got {outlines.shape}, {clearances.shape}")
+    width, height, pad = 1400, 560, 60
+    x_low, x_high = min(outlines[..., 0].min(), 0.0) - 0.05, max(outlines[..., 0].max(), pallet.length) + 0.05
+    z_low = min(outlines[..., 2].min(), pallet.deck_bottom) - 0.03
+    z_high = max(outlines[..., 2].max(), pallet.deck_top) + 0.03
+    sx = (width - 2 * pad) / (x_high - x_low)
+    sz = min((height - 2 * pad) / (z_high - z_low), 8 * sx)
+
+    def to_px(x: NDArray, z: NDArray) -> NDArray[np.int32]:
+        return np.stack([pad + (x - x_low) * sx, height - pad - (z - z_low) * sz], -1).round().astype(np.int32)
+
+    canvas = np.full((height, width, 3), 255, np.uint8)
+    half = pallet.pocket_height / 2
+    solids = [(half, pallet.deck_top)] + ([(pallet.deck_bottom, -half)] if pallet.bottom > 0 else [])
+    for z0, z1 in solids:
+        corners = to_px(np.array([0.0, pallet.length]), np.array([z0, z1]))
+        cv2.rectangle(canvas, tuple(corners[0].tolist()), tuple(corners[1].tolist()), (170, 170, 170), -1)
+    for k in np.unique(np.linspace(0, len(outlines) - 1, 9).round().astype(int)):
+        cv2.polylines(canvas, [to_px(outlines[k, :, 0], outlines[k, :, 2])], True, (220, 180, 120), 1, cv2.LINE_AA)
+    tip = outlines[:, :2].mean(axis=1)
+    near = np.where(clearances[:, None] < 0.01, (0, 140, 255), (0, 160, 0))
+    colours = np.where(clearances[:, None] < 0, (0, 0, 220), near)
+    points = to_px(tip[:, 0], tip[:, 2])
+    for a, b, colour in zip(points[:-1], points[1:], colours[1:], strict=True):
+        cv2.line(canvas, tuple(a.tolist()), tuple(b.tolist()), tuple(int(c) for c in colour), 2, cv2.LINE_AA)
+    worst = int(np.argmin(clearances))
+    cv2.circle(canvas, tuple(points[worst].tolist()), 7, (0, 0, 0), 1, cv2.LINE_AA)
+    lines = [
+        f"fork tip path in the pallet frame; min clearance {clearances[worst] * 1e3:.1f} mm at tip x "
+        f"{tip[worst, 0] * 1e3:.0f} mm (circle)",
+        f"grey: deck and bottom band; blue: left tine at 9 instants; path green > 10 mm, orange 0-10 mm, red contact; "
+        f"height x{sz / sx:.1f}",
+    ]
+    for i, text in enumerate(lines):
+        cv2.putText(canvas, text, (pad, 22 + 20 * i), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
+    write_png(path, canvas)
+    return str(path)

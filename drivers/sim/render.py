@@ -35,7 +35,6 @@ from drivers.sim.raycast import Box, Plane, cast, screen_rectangles
 Array = NDArray[np.float64]
 CATALOGUE = repo_path("configs/pallets.yaml")
 BAND_ROWS = 48
-WORKERS = len(os.sched_getaffinity(0))
 SKY = 0.62  # albedo-like brightness of rays that hit nothing (a bright hall)
 
 # material -> (albedo, BGR tint)
@@ -284,8 +283,10 @@ def _trace(
     def band(rows: slice, pixels: Array, where: NDArray[np.bool_]) -> None:
         image[rows][where] = _sample(camera, objects, pallets, lights, rects, pixels, offsets, shade)
 
-    # one BLAS thread per band thread: OpenBLAS's own threads on small products only contend
-    with threadpool_limits(1, user_api="blas"), ThreadPoolExecutor(max_workers=WORKERS) as pool:
+    # One band thread per core this process may use (a simulate job is pinned to one), one BLAS thread
+    # per band thread: OpenBLAS's own threads on small products only contend.
+    workers = len(os.sched_getaffinity(0))
+    with threadpool_limits(1, user_api="blas"), ThreadPoolExecutor(max_workers=workers) as pool:
         for future in [pool.submit(band, *args) for args in _bands(camera)]:
             future.result()
     return image * light

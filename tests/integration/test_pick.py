@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import time
 
+import cv2
 import pytest
 
 from agf.axis import AxisState
@@ -95,9 +96,15 @@ def test_operator_stop_mid_motion():
         assert controller._state() == "idle"
 
 
-def test_simulate_runs_picks_side_by_side_each_on_its_own_bus(capsys):
-    report = simulate_command(CONFIG, scene=None, runs=2, seed=3, jobs=2)
+def test_simulate_runs_picks_side_by_side_each_on_its_own_bus(capsys, tmp_path):
+    report = simulate_command(CONFIG, scene=None, runs=2, seed=3, jobs=2, plots=str(tmp_path))
     assert report["runs"] == 2 and report["collisions"] == 0
     assert report["inserted"] + len(report["failures"]) == 2
     assert all(f["reason"] for f in report["failures"])  # a refusal always says why
     assert "2/2 picks" in capsys.readouterr().err
+    refused = {f["run"] for f in report["failures"]}
+    for run in set(range(2)) - refused:  # an inserted pick moved: both of its plots are written
+        side = cv2.imread(str(tmp_path / f"pick-{run:03d}" / "fork_path_side.png"))
+        assert side is not None and (tmp_path / f"pick-{run:03d}" / "pick_axes.png").is_file()
+        green_path = (side[..., 1] > 120) & (side[..., 0] < 40) & (side[..., 2] < 40)
+        assert green_path.sum() > 100  # the tip's path, with clearance to spare
