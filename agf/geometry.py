@@ -75,22 +75,6 @@ def check_rotation(R: ArrayLike, tolerance: float = 1e-6) -> NDArray[np.float64]
     return R
 
 
-def rotation_between(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:
-    """Smallest rotation (3, 3) that turns unit direction ``a`` onto unit direction ``b``."""
-    a = np.asarray(a, float) / np.linalg.norm(a)
-    b = np.asarray(b, float) / np.linalg.norm(b)
-    v = np.cross(a, b)
-    c = float(np.dot(a, b))
-    if c < -1.0 + 1e-12:
-        # Opposite vectors: turn by pi about any axis orthogonal to a.
-        helper = np.eye(3)[np.argmin(np.abs(a))]
-        axis = np.cross(a, helper)
-        axis /= np.linalg.norm(axis)
-        return 2.0 * np.outer(axis, axis) - np.eye(3)
-    vx = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
-    return np.eye(3) + vx + vx @ vx / (1.0 + c)
-
-
 @dataclass(frozen=True)
 class Transform:
     """Rigid transform ``A_in_B``: ``p_B = rotation @ p_A + translation``.

@@ -78,7 +78,11 @@ def hough_line(
     edges = np.arange(phi_range[0], phi_range[1] + bin_width, bin_width)
     if edges.size < 2:
         return None
-    accumulator = np.stack([np.histogram(row, bins=edges, weights=weights)[0] for row in phis])
+    bins = np.floor((phis - edges[0]) / bin_width).astype(np.int64)
+    inside = (bins >= 0) & (bins < edges.size - 1)
+    cells = (np.arange(len(taus))[:, None] * (edges.size - 1) + bins)[inside]
+    votes = np.broadcast_to(weights[None, :], phis.shape)[inside]
+    accumulator = np.bincount(cells, weights=votes, minlength=len(taus) * (edges.size - 1)).reshape(len(taus), -1)
     accumulator = accumulator + np.roll(accumulator, 1, axis=1) + np.roll(accumulator, -1, axis=1)
     t_index, p_index = np.unravel_index(np.argmax(accumulator), accumulator.shape)
     normal = circle_normal(panorama, 0.5 * (edges[p_index] + edges[p_index + 1]), taus[t_index])

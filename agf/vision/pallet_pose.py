@@ -32,6 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from agf.camera.base import CameraModel
+from agf.camera.grid import pixels_from_grid
 from agf.config import ForkGeometry, SearchVolume
 from agf.errors import MeasurementError
 from agf.geometry import Transform, matrix_from_euler
@@ -302,14 +303,16 @@ def _view(level: NDArray[np.float32], camera: CameraModel, R_key: tuple, window:
 def _view_maps(camera: CameraModel, R_key: tuple, window: tuple, f: float, lvl: int) -> tuple[NDArray, NDArray]:
     """Maps of a virtual pinhole view (frame V rotated by R_key from the camera) into pyramid level ``lvl``."""
     col0, row0, width, height = window
-    rows, cols = np.mgrid[row0 : row0 + height, col0 : col0 + width].astype(float)
-    directions_v = np.stack([np.ones_like(cols), -cols / f, -rows / f], axis=-1).reshape(-1, 3)
     R_cv = np.array(R_key).reshape(3, 3)
-    pixels, _ = camera.project_directions(directions_v @ R_cv.T)
+
+    def directions(nodes: Array) -> Array:
+        cols, rows = nodes[:, 0] + col0, nodes[:, 1] + row0
+        return np.stack([np.ones_like(cols), -cols / f, -rows / f], axis=-1) @ R_cv.T
+
+    pixels, valid = pixels_from_grid(camera, directions, width, height)
     scale = 2.0**lvl
-    pixels = (pixels + 0.5) / scale - 0.5
-    shape = (height, width)
-    return pixels[:, 0].reshape(shape).astype(np.float32), pixels[:, 1].reshape(shape).astype(np.float32)
+    pixels = np.where(valid[..., None], (pixels + 0.5) / scale - 0.5, -1.0).astype(np.float32)
+    return pixels[..., 0], pixels[..., 1]
 
 
 @dataclass(frozen=True)

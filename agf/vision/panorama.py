@@ -19,6 +19,11 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from agf.camera.base import Array, CameraModel, as_pixels, as_points
+from agf.camera.grid import STEPS, pixels_from_grid
+
+# Lattice cells of at most 0.32 deg keep interpolated maps within 0.005 px of the projection on our lenses
+# (tests/unit/test_camera_grid.py); coarser panoramas are projected on more of their pixels.
+_MAX_CELL = math.radians(0.32)
 
 
 @dataclass(frozen=True)
@@ -101,16 +106,14 @@ class Panorama:
 def panorama_maps(camera: CameraModel, panorama: Panorama) -> tuple[NDArray, NDArray, NDArray[np.bool_]]:
     """Fixed-point ``cv2.remap`` maps from ``panorama`` pixels into ``camera`` pixels, and validity.
 
-    Cached per (camera, panorama): cameras hash by identity, panoramas by value.
+    Cached per (camera, panorama): cameras hash by identity, panoramas by value. The camera is asked on
+    a lattice of panorama pixels only (:func:`~agf.camera.grid.pixels_from_grid`).
     """
-    v, u = np.mgrid[0 : panorama.height, 0 : panorama.width]
-    pixels = np.stack([u.ravel(), v.ravel()], axis=1).astype(float)
-    image_pixels, valid = camera.project_directions(panorama.directions_from_pixels(pixels))
-    shape = (panorama.height, panorama.width)
-    map_u = np.where(valid, image_pixels[:, 0], -1.0).reshape(shape).astype(np.float32)
-    map_v = np.where(valid, image_pixels[:, 1], -1.0).reshape(shape).astype(np.float32)
-    fixed_xy, fixed_frac = cv2.convertMaps(map_u, map_v, cv2.CV_16SC2)
-    return fixed_xy, fixed_frac, valid.reshape(shape)
+    per_pixel = max(panorama.pixel_size(), (panorama.lat_range[1] - panorama.lat_range[0]) / panorama.height)
+    step = max((s for s in STEPS if s * per_pixel <= _MAX_CELL), default=1)
+    pixels, valid = pixels_from_grid(camera, panorama.directions_from_pixels, panorama.width, panorama.height, step)
+    fixed_xy, fixed_frac = cv2.convertMaps(pixels[..., 0], pixels[..., 1], cv2.CV_16SC2)
+    return fixed_xy, fixed_frac, valid
 
 
 def render_panorama(image: NDArray, camera: CameraModel, panorama: Panorama) -> tuple[NDArray, NDArray[np.bool_]]:

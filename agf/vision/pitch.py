@@ -238,9 +238,15 @@ def _pitch_from_direction(direction_f: Array, pallet_in_fork: Transform, hypothe
 
 
 def _panorama_over(axis: Array, segments: list[Array], config: PitchConfig) -> Panorama:
-    """A panorama around ``axis`` just large enough for the segments and their bands."""
-    probe = Panorama.around(axis, 3600, 1800)
-    pixels = probe.pixels_from_directions(_unit(np.concatenate(segments)))
+    """A panorama around ``axis`` just large enough for the segments and their bands.
+
+    Longitude 0 points at the segments, so that their longitude range never wraps through the back of
+    the sphere (the deck edges, below a camera, were 300 deg apart through its top, not 60 through its
+    bottom: a panorama five times too wide).
+    """
+    directions = _unit(np.concatenate(segments))
+    probe = Panorama.around(axis, 3600, 1800, reference=directions.mean(axis=0))
+    pixels = probe.pixels_from_directions(directions)
     lon, lat = probe.angles_from_pixels(pixels)
     margin = config.band + math.radians(1.0)
     lon_range = (float(lon.min() - margin), float(lon.max() + margin))
@@ -259,8 +265,11 @@ def _edge_points(image: NDArray[np.float32], valid: NDArray[np.bool_], panorama:
     gx = np.abs(cv2.Sobel(smooth, cv2.CV_32F, 1, 0, ksize=3))
     gx[~cv2.erode(valid.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)] = 0.0
     left, right = np.roll(gx, 1, axis=1), np.roll(gx, -1, axis=1)
-    noise = 1.4826 * np.median(np.abs(gx[valid] - np.median(gx[valid]))) if valid.any() else 0.0
-    threshold = max(6.0 * noise, 0.2 * float(np.percentile(gx, 99)), 1e-3)
+    # The statistics of the gradient, from every 4th row and column: the full sort cost 15 ms a panorama.
+    sample, sampled_valid = gx[::4, ::4], valid[::4, ::4]
+    inside = sample[sampled_valid]
+    noise = 1.4826 * np.median(np.abs(inside - np.median(inside))) if inside.size else 0.0
+    threshold = max(6.0 * noise, 0.2 * float(np.percentile(sample, 99)), 1e-3)
     peak = (gx > left) & (gx >= right) & (gx > threshold)
     peak[:, [0, -1]] = False
     rows, cols = np.nonzero(peak)

@@ -10,7 +10,6 @@ from agf.geometry import (
     euler_from_matrix,
     matrix_from_axis_angle,
     matrix_from_euler,
-    rotation_between,
     transform_from_dict,
 )
 
@@ -89,13 +88,3 @@ def test_transform_rejects_non_rotation():
         Transform(np.diag([1.0, 2.0, 1.0]), np.zeros(3))
     with pytest.raises(ValueError, match="reflection"):
         Transform(np.diag([1.0, 1.0, -1.0]), np.zeros(3))
-
-
-@given(st.tuples(coords, coords, coords), st.tuples(coords, coords, coords))
-def test_rotation_between_maps_a_onto_b(a, b):
-    a, b = np.array(a), np.array(b)
-    if np.linalg.norm(a) < 1e-3 or np.linalg.norm(b) < 1e-3:
-        return
-    R = rotation_between(a, b)
-    np.testing.assert_allclose(R @ (a / np.linalg.norm(a)), b / np.linalg.norm(b), atol=1e-9)
-    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-9)
