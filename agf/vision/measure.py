@@ -67,7 +67,12 @@ def measure_pallet(
     prior: Transform | None = None,
     config: MeasureConfig = MeasureConfig(),
 ) -> MeasureDetail:
-    """Measure the pallet (pose, pitch, loaded or not) or raise :class:`MeasurementError` with the reason."""
+    """Measure the pallet (pose, pitch, loaded or not) or raise :class:`MeasurementError` with the reason.
+
+    Without a prior the pose is first searched at pitch 0; when that measurement fails, again at
+    +-half the search volume's ``pitch_max``: a pallet pitched 3-4 deg well below the camera matched
+    its level template 60-300 mm off, and the pitch measured there was refused.
+    """
     start = time.perf_counter()
     timing: dict[str, float] = {}
     gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
@@ -82,28 +87,42 @@ def measure_pallet(
         timing["pose"] = timing.get("pose", 0.0) + (time.perf_counter() - t) * 1e3
         return estimate
 
-    pitch = prior.euler[1] if prior is not None else 0.0
-    first = pose = pose_at(prior, pitch, config.pose)
-    evidence: dict[str, PitchEvidence] = {}
-    for _ in range(config.iterations):
+    def pitch_at(pose: PoseEstimate) -> dict[str, PitchEvidence]:
         t = time.perf_counter()
         evidence = {
             "loaded": loaded_evidence(gray, camera, camera_in_fork, pallet, pose.pallet_in_fork, config.pitch),
             "unloaded": unloaded_evidence(gray, camera, camera_in_fork, pallet, pose.pallet_in_fork, config.pitch),
         }
         timing["pitch"] = timing.get("pitch", 0.0) + (time.perf_counter() - t) * 1e3
-        chosen = _choose(evidence)
-        converged = abs(chosen.pitch - pitch) < config.pitch_tolerance
-        pitch = chosen.pitch
-        if converged:
-            break
-        pose = pose_at(pose.pallet_in_fork, pitch, narrow)
-    else:
+        return evidence
+
+    def converged(pitch: float) -> tuple[PoseEstimate, PitchEvidence, dict[str, PitchEvidence]]:
+        first = pose = pose_at(prior, pitch, config.pose)
+        for _ in range(config.iterations):
+            evidence = pitch_at(pose)
+            chosen = _choose(evidence)
+            done = abs(chosen.pitch - pitch) < config.pitch_tolerance
+            pitch = chosen.pitch
+            if done:
+                # The narrow re-searches see no rivals; the wide first search did, at the assumed pitch.
+                pose = dataclasses.replace(pose, margin=min(pose.margin, pose.score - (first.score - first.margin)))
+                check_pose_estimate(pose, camera, face, config.pose)
+                return pose, chosen, evidence
+            pose = pose_at(pose.pallet_in_fork, pitch, narrow)
         raise MeasurementError(f"pose and pitch did not agree after {config.iterations} iterations")
-    # The narrow re-searches see no rivals; the wide first search did, at the assumed pitch.
-    rival = first.score - first.margin
-    pose = dataclasses.replace(pose, margin=min(pose.margin, pose.score - rival))
-    check_pose_estimate(pose, camera, face, config.pose)
+
+    starts = [prior.euler[1]] if prior is not None else [0.0, -volume.pitch_max / 2, volume.pitch_max / 2]
+    failures: list[str] = []
+    for assumed in starts:
+        try:
+            pose, chosen, evidence = converged(assumed)
+            break
+        except MeasurementError as exc:
+            failures.append(str(exc))
+    else:
+        others = sorted(set(failures[1:]) - {failures[0]})
+        also = f" (with the pose searched at pitch +-{math.degrees(volume.pitch_max / 2):.1f} deg too" if others else ""
+        raise MeasurementError(failures[0] + (also + ": " + "; ".join(others) + ")" if others else ""))
     timing["total"] = (time.perf_counter() - start) * 1e3
     measurement = PalletMeasurement(
         pallet_in_camera=pose.pallet_in_camera,

@@ -125,3 +125,19 @@ def test_loaded_neighbours_side_face_beside_the_load_edge_does_not_lean_it(rende
     scene, measurement = measure("robust/loaded-neighbour-side-face", rendered)
     assert within_bounds(errors(scene, measurement)), errors(scene, measurement)
     assert measurement.loaded
+
+
+def test_faint_load_edge_counts_its_weak_maxima_towards_the_ratio(rendered):
+    """Regression: a load edge before a grey wall scored 0.49 of its length with only the strong gradient
+    maxima counted, below the ratio test's 0.5, and the pick was refused."""
+    scene, measurement = measure("robust/load-edge-before-grey-wall", rendered)
+    assert within_bounds(errors(scene, measurement)), errors(scene, measurement)
+    assert measurement.loaded
+
+
+def test_steeply_seen_pitched_pallet_is_searched_again_at_another_pitch(rendered):
+    """Regression: searched at pitch 0 only, a pallet pitched 4.3 deg below the forks matched 83 mm off
+    and the measurement was refused."""
+    scene, measurement = measure("robust/pitched-down-below-the-forks", rendered)
+    assert within_bounds(errors(scene, measurement)), errors(scene, measurement)
+    assert measurement.loaded
