@@ -86,6 +86,12 @@ def hough_line(
     accumulator = accumulator + np.roll(accumulator, 1, axis=1) + np.roll(accumulator, -1, axis=1)
     t_index, p_index = np.unravel_index(np.argmax(accumulator), accumulator.shape)
     normal = circle_normal(panorama, 0.5 * (edges[p_index] + edges[p_index + 1]), taus[t_index])
+    return refine_line(directions, weights, normal, tolerance)
+
+
+def refine_line(directions: Array, weights: Array, normal: Array, tolerance: float) -> SphereLine | None:
+    """The great circle near ``normal`` fitted to the edge ``directions`` (N, 3) within ``tolerance`` (rad)
+    of it, in three rounds of least squares; None when fewer than 3 points are that close."""
     for _ in range(3):
         inliers = np.abs(directions @ normal) < tolerance
         if inliers.sum() < 3:
