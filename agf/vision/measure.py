@@ -28,7 +28,7 @@ from agf.measurement import PalletMeasurement, pose_json
 from agf.pallets import PalletType, load_pallets, pallet_type
 from agf.vision.face_model import face_model_from_pallet
 from agf.vision.pallet_pose import PoseEstimate, PoseSearchConfig, check_pose_estimate, estimate_pallet_pose
-from agf.vision.pitch import PitchConfig, PitchEvidence, loaded_evidence, unloaded_evidence
+from agf.vision.pitch import PitchConfig, PitchEvidence, loaded_evidence, pose_from_deck_edges, unloaded_evidence
 
 
 @dataclass(frozen=True)
@@ -45,6 +45,11 @@ class MeasureConfig:
     # grain, blur) that the rendered paper scenes show (up to 2 mm in z and 0.07 deg in pitch).
     sigma_z_floor: float = 0.001
     sigma_pitch_floor: float = math.radians(0.03)
+    # The deck edges fix y, z and yaw of an unloaded pallet (pose_from_deck_edges). When they move the
+    # face match more than ``deck_edge_research``, the face is searched again from there (its x was off
+    # along the line of sight too); more than ``deck_edge_max`` after that, the two disagree: refused.
+    deck_edge_research: float = 0.005
+    deck_edge_max: float = 0.03
 
 
 @dataclass(frozen=True)
@@ -111,6 +116,20 @@ def measure_pallet(
             pose = pose_at(pose.pallet_in_fork, pitch, narrow)
         raise MeasurementError(f"pose and pitch did not agree after {config.iterations} iterations")
 
+    def onto_deck_edges(pose: PoseEstimate, edges: PitchEvidence) -> PoseEstimate:
+        moved = pose_from_deck_edges(edges, pallet, camera_in_fork, pose.pallet_in_fork)
+        if _distance(moved, pose.pallet_in_fork) > config.deck_edge_research:
+            # Not checked again: the face passed its checks within the window; the edges now pin y, z, yaw.
+            pose = dataclasses.replace(pose_at(moved, moved.euler[1], narrow), margin=pose.margin)
+            moved = pose_from_deck_edges(edges, pallet, camera_in_fork, pose.pallet_in_fork)
+        shift = _distance(moved, pose.pallet_in_fork)
+        if shift > config.deck_edge_max:
+            raise MeasurementError(
+                f"the front face and the top deck's edges disagree by {shift * 1e3:.0f} mm "
+                f"(at most {config.deck_edge_max * 1e3:.0f}); refusing rather than guessing"
+            )
+        return dataclasses.replace(pose, pallet_in_fork=moved, pallet_in_camera=camera_in_fork.inverse() @ moved)
+
     starts = [prior.euler[1]] if prior is not None else [0.0, -volume.pitch_max / 2, volume.pitch_max / 2]
     failures: list[str] = []
     for assumed in starts:
@@ -123,6 +142,8 @@ def measure_pallet(
         others = sorted(set(failures[1:]) - {failures[0]})
         also = f" (with the pose searched at pitch +-{math.degrees(volume.pitch_max / 2):.1f} deg too" if others else ""
         raise MeasurementError(failures[0] + (also + ": " + "; ".join(others) + ")" if others else ""))
+    if chosen.hypothesis == "unloaded":
+        pose = onto_deck_edges(pose, chosen)
     timing["total"] = (time.perf_counter() - start) * 1e3
     measurement = PalletMeasurement(
         pallet_in_camera=pose.pallet_in_camera,
@@ -134,6 +155,10 @@ def measure_pallet(
         timing_ms=timing,
     )
     return MeasureDetail(measurement, pose, evidence)
+
+
+def _distance(a: Transform, b: Transform) -> float:
+    return float(math.dist(a.translation, b.translation))
 
 
 def _choose(evidence: dict[str, PitchEvidence]) -> PitchEvidence:

@@ -106,6 +106,48 @@ def unloaded_evidence(
     return _evidence("unloaded", gray, camera, camera_in_fork, pallet_in_fork, segments, 0, config, anchored=True)
 
 
+def pose_from_deck_edges(
+    evidence: PitchEvidence, pallet: PalletType, camera_in_fork: Transform, pallet_in_fork: Transform
+) -> Transform:
+    """``pallet_in_fork`` turned and moved so that the top deck's edges lie on the lines found.
+
+    Each deck edge and the camera centre span the plane of its great circle, so the two edges fix the
+    pallet's yaw, pitch and its position across them (y and z); only x comes from ``pallet_in_fork``.
+    Seen steeply from above, the face match settled 7-29 mm off in z and up to 0.75 deg in yaw where
+    the deck edges were right to a fraction of a millimetre (random picks 30, 115 and 195).
+
+    Parameters
+    ----------
+    evidence : PitchEvidence
+        A valid unloaded hypothesis: lines of the left (-y) and right (+y) deck edges.
+    pallet : PalletType
+    camera_in_fork, pallet_in_fork : Transform
+        Calibration, and the pose the edges were searched from.
+
+    Raises
+    ------
+    ValueError
+        When ``evidence`` is not a valid unloaded hypothesis.
+    """
+    if evidence.hypothesis != "unloaded" or not evidence.valid:
+        raise ValueError(
+            f"deck edges need a valid unloaded hypothesis, got {evidence.hypothesis} (valid={evidence.valid})"
+        )
+    forward = camera_in_fork.apply_direction(evidence.direction)
+    turned = Transform.from_euler(
+        *pallet_in_fork.translation,
+        0.0,
+        math.atan2(-forward[2], math.hypot(forward[0], forward[1])),
+        math.atan2(forward[1], forward[0]),
+    )
+    in_camera = camera_in_fork.inverse() @ turned
+    R, origin = in_camera.rotation, in_camera.translation
+    normals = np.array([line.normal for line in evidence.lines])
+    corners = np.array([[0.0, side * pallet.width / 2, pallet.deck_top] for side in (-1, 1)])
+    shift = np.linalg.solve(normals @ R[:, 1:], -np.sum(normals * in_camera.apply(corners), axis=1))
+    return camera_in_fork @ Transform(R, origin + R[:, 1:] @ shift)
+
+
 def loaded_evidence(
     gray: NDArray,
     camera: CameraModel,
