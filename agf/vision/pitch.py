@@ -157,11 +157,12 @@ def loaded_evidence(
     config: PitchConfig = PitchConfig(),
 ) -> PitchEvidence:
     """The load's left and right vertical edges, parallel to pallet Z, within the pallet's width."""
-    z = np.linspace(pallet.deck_top + 0.02, pallet.deck_top + config.load_height, 24)
     inset = config.load_search / 2
-    segments = [np.c_[np.zeros_like(z), np.full_like(z, side * (pallet.width / 2 - inset)), z] for side in (-1, 1)]
-    up = np.linspace(pallet.deck_top + 0.02, pallet.deck_top + config.load_reach, 48)
-    reach = [np.c_[np.zeros_like(up), np.full_like(up, side * (pallet.width / 2 - inset)), up] for side in (-1, 1)]
+
+    def edges_up_to(height: float, count: int) -> list[Array]:
+        z = np.linspace(pallet.deck_top + 0.02, pallet.deck_top + height, count)
+        return [np.c_[np.zeros_like(z), np.full_like(z, side * (pallet.width / 2 - inset)), z] for side in (-1, 1)]
+
     band = math.atan2(inset + 0.03, float(np.linalg.norm(pallet_in_fork.translation - camera_in_fork.translation)))
     return _evidence(
         "loaded",
@@ -169,10 +170,10 @@ def loaded_evidence(
         camera,
         camera_in_fork,
         pallet_in_fork,
-        segments,
+        edges_up_to(config.load_height, 24),
         2,
         PitchConfig(**{**config.__dict__, "band": max(config.band, band)}),
-        reach_p=reach,
+        reach_p=edges_up_to(config.load_reach, 48),
     )
 
 
@@ -221,7 +222,7 @@ def _evidence(
             grown = _from_reference_viewpoint(camera, directions[along], far)
             fit = refine_line(grown, np.ones(len(grown)), line.normal, config.inlier_tolerance * panorama.pixel_size())
             spread = grown[fit.inliers] @ fit.normal if fit is not None else np.zeros(0)
-            scatter.append(float(np.std(spread)) / math.sqrt(max(len(spread), 1)) if len(spread) else 0.0)
+            scatter.append(float(np.std(spread)) / math.sqrt(len(spread)) if len(spread) else 0.0)
         length = max(region[3] - region[2], 1.0)
         ratios.append(
             0.0 if line is None else min(_support(line, corrected, rows[inside], panorama, config) / length, 1.0)
