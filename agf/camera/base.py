@@ -156,8 +156,7 @@ class CameraModel(ABC):
         x = points[:, 0]
         theta = np.arctan2(rho, x)
         for _ in range(30):
-            s = self.shift.offset(theta)
-            ds = self.shift.derivative(theta)
+            s, ds = self.shift.offset_and_derivative(theta)
             dx = x - s
             f = theta - np.arctan2(rho, dx)
             df = 1.0 - rho * ds / (rho**2 + dx**2)

@@ -58,13 +58,23 @@ def pixels_from_grid(
     cols, rows = _lattice(width, step), _lattice(height, step)
     lattice = np.stack(np.meshgrid(cols, rows), axis=-1).reshape(-1, 2).astype(float)
     pixels, valid = camera.project_directions(directions_from_nodes(lattice))
-    coarse = np.concatenate([np.where(valid[:, None], pixels, 0.0), valid[:, None]], axis=1)
-    coarse = coarse.reshape(len(rows), len(cols), 3).astype(np.float32)
-    # remap's bilinear weights come in 32nds of a pixel, so for a step dividing 32 its interpolation is exact.
-    at_col, at_row = np.meshgrid(np.arange(width, dtype=np.float32) / step, np.arange(height, dtype=np.float32) / step)
-    fine = cv2.remap(coarse, at_col, at_row, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    ok = fine[..., 2] > 1.0 - 1e-4
-    return np.where(ok[..., None], fine[..., :2], np.float32(-1.0)), ok
+    coarse = np.where(valid[:, None], pixels, 0.0).reshape(len(rows), len(cols), 2).astype(np.float32)
+    fine = _interpolate(coarse, step, width, height)
+    ok = _interpolate(valid.reshape(len(rows), len(cols)).astype(np.float32), step, width, height) > 1.0 - 1e-4
+    out = np.full((height, width, 2), -1.0, np.float32)
+    cv2.copyTo(fine, ok.view(np.uint8), out)  # masked copy: numpy's broadcast where cost 4x as long
+    return out, ok
+
+
+def _interpolate(coarse: NDArray[np.float32], step: int, width: int, height: int) -> NDArray[np.float32]:
+    """Bilinear interpolation of lattice values onto every node: node (c, r) reads lattice (c, r) / step.
+
+    warpAffine's bilinear weights come in 32nds of a pixel, as remap's do, so for a step dividing 32 the
+    interpolation is exact; unlike remap it needs no full-size coordinate maps.
+    """
+    scale = np.array([[1.0 / step, 0.0, 0.0], [0.0, 1.0 / step, 0.0]])
+    flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
+    return cv2.warpAffine(coarse, scale, (width, height), flags=flags, borderMode=cv2.BORDER_REPLICATE)
 
 
 def _lattice(size: int, step: int) -> NDArray[np.int_]:

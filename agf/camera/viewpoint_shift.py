@@ -8,7 +8,7 @@ angle (45 deg), where the reference viewpoint, the origin of the camera frame, s
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -29,6 +29,7 @@ class ViewpointShift:
     offsets: NDArray[np.float64] | None = None
     poly: NDArray[np.float64] | None = None
     reference: float = REFERENCE_ANGLE
+    _slopes: NDArray[np.float64] | None = field(default=None, init=False, repr=False)  # the table's tangents
 
     def __post_init__(self) -> None:
         if (self.poly is None) == (self.angles is None):
@@ -52,29 +53,31 @@ class ViewpointShift:
             raise ValueError("viewpoint shift table: angles must increase strictly")
         object.__setattr__(self, "angles", angles)
         object.__setattr__(self, "offsets", offsets)
+        object.__setattr__(self, "_slopes", np.gradient(offsets, angles))
 
     def offset(self, theta: ArrayLike) -> NDArray[np.float64]:
         """Pupil offset along the optical axis (m, forward positive) at incidence ``theta`` (rad)."""
-        return self._evaluate(np.asarray(theta, dtype=float))[0]
+        return self.offset_and_derivative(theta)[0]
 
     def derivative(self, theta: ArrayLike) -> NDArray[np.float64]:
         """d offset / d theta (m/rad)."""
-        return self._evaluate(np.asarray(theta, dtype=float))[1]
+        return self.offset_and_derivative(theta)[1]
 
-    def _evaluate(self, theta: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    def offset_and_derivative(self, theta: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """:meth:`offset` and :meth:`derivative` in one evaluation (the projection's Newton solve needs both)."""
+        theta = np.asarray(theta, dtype=float)
         if self.poly is not None:
             t = theta - self.reference
             value = np.polynomial.polynomial.polyval(t, self.poly)
             slope = np.polynomial.polynomial.polyval(t, np.polynomial.polynomial.polyder(self.poly))
             return value, slope
-        return _hermite(self.angles, self.offsets, theta)
+        return _hermite(self.angles, self.offsets, self._slopes, theta)
 
 
 def _hermite(
-    x: NDArray[np.float64], y: NDArray[np.float64], t: NDArray[np.float64]
+    x: NDArray[np.float64], y: NDArray[np.float64], slopes: NDArray[np.float64], t: NDArray[np.float64]
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Cubic Hermite interpolation with finite-difference tangents, linear beyond the ends."""
-    slopes = np.gradient(y, x)
+    """Cubic Hermite interpolation with tangents ``slopes`` (finite differences), linear beyond the ends."""
     tc = np.clip(t, x[0], x[-1])
     i = np.clip(np.searchsorted(x, tc) - 1, 0, x.size - 2)
     h = x[i + 1] - x[i]

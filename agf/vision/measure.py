@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 import cv2
+import numpy as np
 from numpy.typing import NDArray
 
 from agf.camera import CameraModel, load_camera
@@ -82,40 +83,42 @@ def measure_pallet(
     start = time.perf_counter()
     timing: dict[str, float] = {}
     gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    gray_f = gray.astype(np.float32)  # the pose search's working copy, made once for all its calls
     face = face_model_from_pallet(pallet)
-    narrow = PoseSearchConfig(**{**config.pose.__dict__, "prior_window": 0.04, "prior_yaw_window": math.radians(2)})
+    # Searched again near a pose of this frame: its rivals were judged in the wide search, so one candidate.
+    narrow = dataclasses.replace(config.pose, prior_window=0.04, prior_yaw_window=math.radians(2), candidates=1)
 
     def pose_at(near: Transform | None, pitch: float, search: PoseSearchConfig) -> PoseEstimate:
         t = time.perf_counter()
         estimate = estimate_pallet_pose(
-            gray, camera, camera_in_fork, face, volume, prior=near, pitch=pitch, forks=forks, config=search, check=False
+            gray_f, camera, camera_in_fork, face, volume, prior=near, pitch=pitch, forks=forks, config=search,
+            check=False,
         )
         timing["pose"] = timing.get("pose", 0.0) + (time.perf_counter() - t) * 1e3
         return estimate
 
-    def pitch_at(pose: PoseEstimate) -> dict[str, PitchEvidence]:
+    def pitch_at(pose: PoseEstimate, before: dict[str, PitchEvidence] | None) -> dict[str, PitchEvidence]:
+        """Both hypotheses at the first pose; after that the loaded one only when the unloaded one fails,
+        as a valid unloaded hypothesis wins anyway (its loaded score is then that of the pose before)."""
         t = time.perf_counter()
-        evidence = {
-            "loaded": loaded_evidence(gray, camera, camera_in_fork, pallet, pose.pallet_in_fork, config.pitch),
-            "unloaded": unloaded_evidence(gray, camera, camera_in_fork, pallet, pose.pallet_in_fork, config.pitch),
-        }
+        unloaded = unloaded_evidence(gray, camera, camera_in_fork, pallet, pose.pallet_in_fork, config.pitch)
+        if before is None or not unloaded.valid:
+            loaded = loaded_evidence(gray, camera, camera_in_fork, pallet, pose.pallet_in_fork, config.pitch)
+        else:
+            loaded = before["loaded"]
         timing["pitch"] = timing.get("pitch", 0.0) + (time.perf_counter() - t) * 1e3
-        return evidence
+        return {"loaded": loaded, "unloaded": unloaded}
 
     def converged(pitch: float) -> tuple[PoseEstimate, PitchEvidence, dict[str, PitchEvidence]]:
         first = pose = pose_at(prior, pitch, config.pose)
         step = swing = 0.0
+        evidence = None
         for _ in range(config.iterations):
-            evidence = pitch_at(pose)
+            evidence = pitch_at(pose, evidence)
             chosen = _choose(evidence)
             change = chosen.pitch - pitch
-            # A pose-pitch 2-cycle (the edges' pitch swinging 0.07 deg with the pose's, random pick 73)
-            # is split at its midpoint, and half its swing counts in the pitch's uncertainty.
-            if change * step < 0:
-                swing = max(swing, abs(change))
-                pitch += change / 2
-            else:
-                pitch += change
+            pitch, swung = next_pitch(pitch, chosen.pitch, step)
+            swing = max(swing, swung)
             step = change
             if abs(change) < config.pitch_tolerance:
                 chosen = dataclasses.replace(chosen, sigma=max(chosen.sigma, swing / 2))
@@ -165,6 +168,20 @@ def measure_pallet(
         timing_ms=timing,
     )
     return MeasureDetail(measurement, pose, evidence)
+
+
+def next_pitch(searched: float, measured: float, last_change: float) -> tuple[float, float]:
+    """The pitch (rad) to search the pose at next, and the swing of a pose-pitch 2-cycle (rad, 0 if none).
+
+    ``measured`` is the pitch the edges gave at the pose searched at pitch ``searched``; ``last_change``
+    the previous iteration's ``measured - searched``. When the change turns back, the two are in a 2-cycle
+    (the edges' pitch swinging 0.07 deg with the pose's, random pick 73): the next search is at the
+    midpoint, and half the swing belongs in the pitch's uncertainty.
+    """
+    change = measured - searched
+    if change * last_change < 0:
+        return searched + change / 2, abs(change)
+    return measured, 0.0
 
 
 def _distance(a: Transform, b: Transform) -> float:

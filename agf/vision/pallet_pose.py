@@ -295,13 +295,14 @@ def _key(R: Array) -> tuple[float, ...]:
 
 
 def _view(level: NDArray[np.float32], camera: CameraModel, R_key: tuple, window: tuple, f: float, lvl: int):
-    map_u, map_v = _view_maps(camera, R_key, window, round(f, 6), lvl)
-    return cv2.remap(level, map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    pixels = _view_map(camera, R_key, window, round(f, 6), lvl)
+    return cv2.remap(level, pixels, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
 
 @functools.lru_cache(maxsize=256)
-def _view_maps(camera: CameraModel, R_key: tuple, window: tuple, f: float, lvl: int) -> tuple[NDArray, NDArray]:
-    """Maps of a virtual pinhole view (frame V rotated by R_key from the camera) into pyramid level ``lvl``."""
+def _view_map(camera: CameraModel, R_key: tuple, window: tuple, f: float, lvl: int) -> NDArray[np.float32]:
+    """Map (H, W, 2) of a virtual pinhole view (frame V rotated by R_key from the camera) into pyramid
+    level ``lvl``."""
     col0, row0, width, height = window
     R_cv = np.array(R_key).reshape(3, 3)
 
@@ -310,9 +311,9 @@ def _view_maps(camera: CameraModel, R_key: tuple, window: tuple, f: float, lvl: 
         return np.stack([np.ones_like(cols), -cols / f, -rows / f], axis=-1) @ R_cv.T
 
     pixels, valid = pixels_from_grid(camera, directions, width, height)
-    scale = 2.0**lvl
-    pixels = np.where(valid[..., None], (pixels + 0.5) / scale - 0.5, -1.0).astype(np.float32)
-    return pixels[..., 0], pixels[..., 1]
+    pixels = (pixels + 0.5) / 2.0**lvl - 0.5
+    pixels[~valid] = -1.0
+    return pixels
 
 
 @dataclass(frozen=True)
@@ -687,7 +688,7 @@ def _gray(image: NDArray, camera: CameraModel) -> NDArray[np.float32]:
             f"{camera.width} x {camera.height}"
         )
     gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
-    return gray.astype(np.float32)
+    return gray.astype(np.float32, copy=False)
 
 
 def _pyramid(gray: NDArray[np.float32], levels: int) -> list[NDArray[np.float32]]:

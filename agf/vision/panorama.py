@@ -112,7 +112,7 @@ def panorama_maps(camera: CameraModel, panorama: Panorama) -> tuple[NDArray, NDA
     per_pixel = max(panorama.pixel_size(), (panorama.lat_range[1] - panorama.lat_range[0]) / panorama.height)
     step = max((s for s in STEPS if s * per_pixel <= _MAX_CELL), default=1)
     pixels, valid = pixels_from_grid(camera, panorama.directions_from_pixels, panorama.width, panorama.height, step)
-    fixed_xy, fixed_frac = cv2.convertMaps(pixels[..., 0], pixels[..., 1], cv2.CV_16SC2)
+    fixed_xy, fixed_frac = cv2.convertMaps(pixels, None, cv2.CV_16SC2)
     return fixed_xy, fixed_frac, valid
 
 

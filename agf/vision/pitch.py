@@ -198,7 +198,8 @@ def _evidence(
     reach = [pallet_in_camera.apply(s) for s in reach_p] if reach_p is not None else segments
     panorama = _panorama_over(predicted, segments + reach, config)
     image, valid = render_panorama(gray, camera, panorama)
-    directions, strong, columns, rows = _edge_points(image.astype(np.float32), valid, panorama)
+    areas = [_region(panorama, segment, config) for segment in segments + reach]
+    directions, strong, columns, rows = _edge_points(image.astype(np.float32), valid, panorama, areas)
     lines, regions, ratios, scatter = [], [], [], []
     rivals = 0
     for segment, far in zip(segments, reach, strict=True):
@@ -335,26 +336,32 @@ def _panorama_over(axis: Array, segments: list[Array], config: PitchConfig) -> P
     return Panorama.around(axis, width, height, reference=probe.reference, lon_range=lon_range, lat_range=lat_range)
 
 
-def _edge_points(image: NDArray[np.float32], valid: NDArray[np.bool_], panorama: Panorama):
+def _edge_points(image: NDArray[np.float32], valid: NDArray[np.bool_], panorama: Panorama, areas: list[Array]):
     """Sub-pixel maxima of the horizontal gradient along each row above half an adaptive threshold, and
-    which of them reach the threshold itself (the strong ones that lines are fitted to)."""
+    which of them reach the threshold itself (the strong ones that lines are fitted to).
+
+    Directions (camera frame) are computed only for maxima in one of the ``areas`` (regions as
+    :func:`_region` gives them), NaN elsewhere: the rest of the panorama only sets the threshold.
+    """
     smooth = cv2.GaussianBlur(image, (0, 0), 0.8)
     gx = np.abs(cv2.Sobel(smooth, cv2.CV_32F, 1, 0, ksize=3))
     gx[~cv2.erode(valid.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)] = 0.0
-    left, right = np.roll(gx, 1, axis=1), np.roll(gx, -1, axis=1)
     # The statistics of the gradient, from every 4th row and column: the full sort cost 15 ms a panorama.
     sample, sampled_valid = gx[::4, ::4], valid[::4, ::4]
     inside = sample[sampled_valid]
     noise = 1.4826 * np.median(np.abs(inside - np.median(inside))) if inside.size else 0.0
     threshold = max(6.0 * noise, 0.2 * float(np.percentile(sample, 99)), 1e-3)
-    peak = (gx > left) & (gx >= right) & (gx > 0.5 * threshold)
-    peak[:, [0, -1]] = False
+    centre = gx[:, 1:-1]
+    peak = (centre > gx[:, :-2]) & (centre >= gx[:, 2:]) & (centre > 0.5 * threshold)  # not in the outer columns
     rows, cols = np.nonzero(peak)
-    l, c, r = left[rows, cols], gx[rows, cols], right[rows, cols]
+    cols += 1
+    l, c, r = gx[rows, cols - 1], gx[rows, cols], gx[rows, cols + 1]
     offset = 0.5 * (l - r) / np.where(l - 2 * c + r < 0, l - 2 * c + r, -1.0)
-    columns = cols + offset
-    directions = panorama.directions_from_pixels(np.stack([columns, rows.astype(float)], axis=1))
-    return directions, c > threshold, columns, rows.astype(float)
+    columns, rows = cols + offset, rows.astype(float)
+    needed = np.any([_inside(area, columns, rows) for area in areas], axis=0)
+    directions = np.full((len(rows), 3), np.nan)
+    directions[needed] = panorama.directions_from_pixels(np.stack([columns[needed], rows[needed]], axis=1))
+    return directions, c > threshold, columns, rows
 
 
 def _from_reference_viewpoint(camera: CameraModel, directions: Array, segment: Array) -> Array:
