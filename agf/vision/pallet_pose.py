@@ -254,11 +254,8 @@ def _scan(
         bounds_v = (*reach_v[:, 1:].min(axis=0).tolist(), *reach_v[:, 1:].max(axis=0).tolist())
         step = scale_step_px / face.width
         scales = np.arange(f / np.max(origins_v[:, 0]), f / np.min(origins_v[:, 0]) + step / 2, step)
-        peaks = [
-            _peaks(integrals, template, weights, scale, f, window, bounds_v)
-            for scale, template in zip(scales, _templates(face, cells, 1.0 / scales), strict=True)
-        ]
-        found += _in_box(np.concatenate([np.zeros((0, 4)), *peaks]), R_cv, camera_in_fork, yaw, box)
+        peaks = _peaks(integrals, _templates(face, cells, 1.0 / scales), weights, scales, f, window, bounds_v)
+        found += _in_box(peaks, R_cv, camera_in_fork, yaw, box)
     found.sort(key=lambda c: -c[0])
     return _distinct(found, face, camera_in_fork.translation)
 
@@ -360,46 +357,90 @@ def _corner_weights(values: Array) -> tuple[NDArray[np.int_], NDArray[np.int_], 
     return a, b, weights[a, b], corner
 
 
-def _peaks(integrals, template: _Template, weights, scale: float, f: float, window, bounds_v) -> Array:
-    """The (up to 4) best local maxima of the correlation at one scale that may put the face in the box:
-    (K, 4) rows of score and face origin (view frame, m).
+@dataclass(frozen=True)
+class _Span:
+    """Where one scale's correlation is computed: from offset (top, left), ``shape`` offsets, of which the
+    ``inner`` rectangle (relative rows and columns, [start, stop)) may put the face in the box."""
 
-    Only offsets whose face origin lies within ``bounds_v`` (the box's view-frame extent in y and z: low
-    y, low z, high y, high z) are candidates, and the correlation is computed only there and 2 px
-    around (the local maximum test looks 2 px each way): at one depth the box covers a fraction of the
-    view.
-    """
+    top: int
+    left: int
+    shape: tuple[int, int]
+    inner: tuple[int, int, int, int]
+
+
+def _span(integrals: NDArray, template: _Template, scale: float, window, bounds_v) -> _Span | None:
+    """The offsets of one scale whose face origin lies within ``bounds_v`` (the box's view-frame extent
+    in y and z: low y, low z, high y, high z), and 2 px around them for the local maximum test; None
+    when there are none."""
     height, width = template.height, template.width
     out_rows, out_cols = integrals.shape[1] - height, integrals.shape[2] - width
     if height < 3 or out_rows < 2 or out_cols < 2:
-        return np.zeros((0, 4))
+        return None
     y_low, z_low, y_high, z_high = bounds_v
     row_c, col_c = (height - 1) / 2 + window[1], (width - 1) / 2 + window[0]  # raster centre at offset 0
     r0, r1 = _offsets(-(z_high + template.z_mid) * scale - row_c, -(z_low + template.z_mid) * scale - row_c, out_rows)
     c0, c1 = _offsets(-(y_high + template.y_mid) * scale - col_c, -(y_low + template.y_mid) * scale - col_c, out_cols)
     if r0 >= r1 or c0 >= c1:
-        return np.zeros((0, 4))
+        return None
     top, left = max(r0 - 2, 0), max(c0 - 2, 0)
     shape = (min(r1 + 2, out_rows) - top, min(c1 + 2, out_cols) - left)
-    response = _match(integrals[:, top:, left:], template, weights, shape)
-    inner = (slice(r0 - top, r1 - top), slice(c0 - left, c1 - left))
-    if not np.any(response[inner] > 0.2):
+    return _Span(top, left, shape, (r0 - top, r1 - top, c0 - left, c1 - left))
+
+
+def _peaks(integrals, templates: list[_Template], weights, scales: Array, f: float, window, bounds_v) -> Array:
+    """The (up to 4) best local maxima of the correlation at each scale that may put the face in the box:
+    (K, 4) rows of score and face origin (view frame, m), scale by scale, best first within each.
+
+    The correlation is computed only where :func:`_span` says (at one depth the box covers a fraction of
+    the view).
+    """
+    spans = [_span(integrals, t, scale, window, bounds_v) for t, scale in zip(templates, scales, strict=True)]
+    live = [k for k, span in enumerate(spans) if span is not None]
+    if not live:
         return np.zeros((0, 4))
-    local_max = response >= cv2.dilate(response, _NEIGHBOURS)
-    r, c = np.nonzero(local_max[inner] & (response[inner] > 0.2))
-    r, c = r + r0 - top, c + c0 - left
-    order = np.argsort(-response[r, c])[:4]
-    r, c = r[order], c[order]
+    stack, inner = _responses(integrals, [templates[k] for k in live], weights, [spans[k] for k in live])
+    n, r, c, score = _best_maxima(stack, inner, 4)
+    table = np.array([[scales[k], spans[k].top, spans[k].left, *_layout(templates[k])] for k in live])
+    scale, top, left, height, width, y_mid, z_mid = table[n].T
     metres = 1.0 / scale  # per view pixel at the face
+    row_c, col_c = (height - 1) / 2 + window[1], (width - 1) / 2 + window[0]  # raster centre at offset 0
     return np.stack(
-        [
-            response[r, c],
-            np.full(len(r), f * metres),
-            -(c + left + col_c) * metres - template.y_mid,
-            -(r + top + row_c) * metres - template.z_mid,
-        ],
-        axis=1,
+        [score, f * metres, -(c + left + col_c) * metres - y_mid, -(r + top + row_c) * metres - z_mid], axis=1
     )
+
+
+def _layout(template: _Template) -> tuple[int, int, float, float]:
+    return template.height, template.width, template.y_mid, template.z_mid
+
+
+def _responses(integrals, templates: list[_Template], weights, spans: list[_Span]) -> tuple[NDArray, NDArray]:
+    """The scales' correlations (S, R, C), each from the top left of its slice and below any score (-2)
+    beyond its span, and where each slice's inner rectangle is. The last two rows of every slice are
+    padding, so that a 5 x 5 neighbourhood never reaches into the next."""
+    rows = max(span.shape[0] for span in spans) + 2
+    cols = max(span.shape[1] for span in spans)
+    stack = np.full((len(spans), rows, cols), -2.0, np.float32)
+    inner = np.zeros(stack.shape, bool)
+    for n, (template, span) in enumerate(zip(templates, spans, strict=True)):
+        response = _match(integrals[:, span.top :, span.left :], template, weights, span.shape)
+        stack[n, : span.shape[0], : span.shape[1]] = response
+        r0, r1, c0, c1 = span.inner
+        inner[n, r0:r1, c0:c1] = True
+    return stack, inner
+
+
+def _best_maxima(stack: NDArray, inner: NDArray[np.bool_], count: int) -> tuple[NDArray, ...]:
+    """Slice, row, column and score of the ``count`` best local maxima above 0.2 in each slice's inner
+    rectangle, slice by slice, best first: one dilation and one threshold for all slices, as per slice the
+    calls cost more than the arithmetic."""
+    flat = stack.reshape(-1, stack.shape[2])
+    local_max = (flat >= cv2.dilate(flat, _NEIGHBOURS)).reshape(stack.shape)
+    n, r, c = np.nonzero(local_max & inner & (stack > 0.2))
+    score = stack[n, r, c]
+    order = np.lexsort((-score, n))
+    n, r, c, score = n[order], r[order], c[order], score[order]
+    best = np.arange(len(n)) - np.searchsorted(n, n) < count  # rank within the slice
+    return n[best], r[best], c[best], score[best]
 
 
 def _in_box(peaks: Array, R_cv: Array, camera_in_fork: Transform, yaw: float, box: _Box) -> list[tuple[float, _Params]]:
