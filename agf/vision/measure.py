@@ -29,7 +29,13 @@ from agf.insertion import InsertionConfig, tolerance_margins
 from agf.measurement import PalletMeasurement, pose_json
 from agf.pallets import PalletType, load_pallets, pallet_type
 from agf.vision.face_model import face_model_from_pallet
-from agf.vision.pallet_pose import PoseEstimate, PoseSearchConfig, check_pose_estimate, estimate_pallet_pose
+from agf.vision.pallet_pose import (
+    PoseEstimate,
+    PoseSearchConfig,
+    check_pose_estimate,
+    estimate_pallet_pose,
+    refine_pallet_pose,
+)
 from agf.vision.pitch import PitchConfig, PitchEvidence, loaded_evidence, pose_from_deck_edges, unloaded_evidence
 
 
@@ -52,6 +58,10 @@ class MeasureConfig:
     # along the line of sight too); more than ``deck_edge_max`` after that, the two disagree: refused.
     deck_edge_research: float = 0.005
     deck_edge_max: float = 0.03
+    # At a new pitch the pose is refined from the last one when the wide search was unambiguous (its
+    # margin at least the pose search's minimum); a refinement moving it further than this is replaced
+    # by a search nearby.
+    refine_max: float = 0.01
 
 
 @dataclass(frozen=True)
@@ -97,6 +107,26 @@ def measure_pallet(
         timing["pose"] = timing.get("pose", 0.0) + (time.perf_counter() - t) * 1e3
         return estimate
 
+    def pose_again(pose: PoseEstimate, pitch: float, first: PoseEstimate) -> PoseEstimate:
+        """The pose at a new pitch: refined from the last one (11 ms; the search nearby took 22), but
+        searched nearby when the wide search was ambiguous or the refinement moved far. At the wrong
+        pitch, a steeply seen pallet matched 230 mm off along the line of sight with a margin of 0.03
+        (paper scene unloaded-high-rear-up); refined from there it moved 60 mm and stopped 170 mm off,
+        while the search found the face within 3 mm."""
+        if first.margin >= config.pose.min_margin:
+            t = time.perf_counter()
+            try:
+                refined = refine_pallet_pose(
+                    gray_f, camera, camera_in_fork, face, pose.pallet_in_fork, pitch=pitch, forks=forks,
+                    config=config.pose,
+                )
+            except MeasurementError:
+                refined = None
+            timing["pose"] += (time.perf_counter() - t) * 1e3
+            if refined is not None and _distance(refined.pallet_in_fork, pose.pallet_in_fork) <= config.refine_max:
+                return refined
+        return pose_at(pose.pallet_in_fork, pitch, narrow)
+
     def pitch_at(pose: PoseEstimate, before: dict[str, PitchEvidence] | None) -> dict[str, PitchEvidence]:
         """Both hypotheses at the first pose; after that the loaded one only when the unloaded one fails,
         as a valid unloaded hypothesis wins anyway (its loaded score is then that of the pose before)."""
@@ -126,7 +156,7 @@ def measure_pallet(
                 pose = dataclasses.replace(pose, margin=min(pose.margin, pose.score - (first.score - first.margin)))
                 check_pose_estimate(pose, camera, face, config.pose)
                 return pose, chosen, evidence
-            pose = pose_at(pose.pallet_in_fork, pitch, narrow)
+            pose = pose_again(pose, pitch, first)
         raise MeasurementError(f"pose and pitch did not agree after {config.iterations} iterations")
 
     def onto_deck_edges(pose: PoseEstimate, edges: PitchEvidence) -> PoseEstimate:

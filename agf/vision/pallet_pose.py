@@ -163,21 +163,63 @@ def estimate_pallet_pose(
 
     t = time.perf_counter()
     starts = [params for _, params in candidates[: config.candidates]]
+    fitted = _fine(gray, camera, camera_in_fork, face, starts, forks, config)
+    timing["refine"] = (time.perf_counter() - t) * 1e3
+    score, params, *_ = fitted[0]
+    margin = _margin(score, params, fitted[1:], candidates, face, camera_in_fork.translation)
+    timing["total"] = (time.perf_counter() - start) * 1e3
+    estimate = _estimate(fitted[0], margin, camera_in_fork, timing)
+    if check:
+        check_pose_estimate(estimate, camera, face, config)
+    return estimate
+
+
+def refine_pallet_pose(
+    image: NDArray,
+    camera: CameraModel,
+    camera_in_fork: Transform,
+    face: FaceModel,
+    start: Transform,
+    *,
+    pitch: float | None = None,
+    forks: ForkGeometry | None = None,
+    config: PoseSearchConfig = PoseSearchConfig(),
+) -> PoseEstimate:
+    """The fine stage of :func:`estimate_pallet_pose` alone, from ``start`` (``pallet_in_fork`` known to a
+    few millimetres, as this frame's own pose searched at another pitch), at ``pitch`` (default the start's).
+
+    It sees no rivals, so the estimate's margin is its score, and it is not checked: the caller has both
+    from the search that gave ``start``.
+
+    Raises
+    ------
+    MeasurementError
+        When the pocket edges cannot be fitted from ``start``.
+    """
+    start_time = time.perf_counter()
+    yaw, start_pitch, _ = start.euler
+    params = _Params(*start.translation, yaw, start_pitch if pitch is None else pitch)
+    fitted = _fine(_gray(image, camera), camera, camera_in_fork, face, [params], forks, config)
+    return _estimate(fitted[0], fitted[0][0], camera_in_fork, {"total": (time.perf_counter() - start_time) * 1e3})
+
+
+def _fine(gray, camera, camera_in_fork, face: FaceModel, starts: list[_Params], forks, config) -> list[tuple]:
+    """The fits from ``starts`` (score, params, residual, edges used, occluded, worst group, sigma), most
+    similar first; :class:`MeasurementError` when none fits."""
     smooth = _smooth_near(gray, camera, camera_in_fork, face, starts)
     points, normals, groups = face.edge_points(config.edge_spacing)
     fits = _refine(smooth, camera, camera_in_fork, starts, points, normals, groups, forks, config)
     fits = [fit for fit in fits if fit is not None]
-    scores = _face_similarities(gray, camera, camera_in_fork, face, [fit[0] for fit in fits]) if fits else []
-    fitted = [(score, *fit) for score, fit in zip(scores, fits, strict=True)]
-    timing["refine"] = (time.perf_counter() - t) * 1e3
-    if not fitted:
+    if not fits:
         raise MeasurementError("the pallet front face could not be fitted to image edges")
-    fitted.sort(key=lambda f: -f[0])
-    score, params, residual, used, occluded, worst_group, sigma = fitted[0]
-    margin = _margin(score, params, fitted[1:], candidates, face, camera_in_fork.translation)
-    timing["total"] = (time.perf_counter() - start) * 1e3
+    scores = _face_similarities(gray, camera, camera_in_fork, face, [fit[0] for fit in fits])
+    return sorted([(score, *fit) for score, fit in zip(scores, fits, strict=True)], key=lambda f: -f[0])
+
+
+def _estimate(fit: tuple, margin: float, camera_in_fork: Transform, timing: dict[str, float]) -> PoseEstimate:
+    score, params, residual, used, occluded, worst_group, sigma = fit
     pallet_in_fork = params.transform()
-    estimate = PoseEstimate(
+    return PoseEstimate(
         camera_in_fork.inverse() @ pallet_in_fork,
         pallet_in_fork,
         score,
@@ -189,9 +231,6 @@ def estimate_pallet_pose(
         sigma,
         timing,
     )
-    if check:
-        check_pose_estimate(estimate, camera, face, config)
-    return estimate
 
 
 # -- search space ---------------------------------------------------------------------------------
