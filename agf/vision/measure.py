@@ -2,7 +2,8 @@
 
 The data flow of paper section III: pose at an assumed pitch -> the loaded and unloaded line
 hypotheses -> choose (both valid: unloaded, the paper's rule against background verticals) ->
-pose again at the measured pitch, until pose and pitch agree -> for an unloaded pallet, y, z, yaw and
+the pose refined at the measured pitch (searched again nearby when the first search was ambiguous),
+until pose and pitch agree -> for an unloaded pallet, y, z, yaw and
 pitch from the planes of its two deck edges, x from the face. ``agf measure`` is
 :func:`measure_command` over :func:`measure_pallet`.
 """
