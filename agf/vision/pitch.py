@@ -198,13 +198,12 @@ def _evidence(
     reach = [pallet_in_camera.apply(s) for s in reach_p] if reach_p is not None else segments
     panorama = _panorama_over(predicted, segments + reach, config)
     image, valid = render_panorama(gray, camera, panorama)
-    areas = [_region(panorama, segment, config) for segment in segments + reach]
-    directions, strong, columns, rows = _edge_points(image.astype(np.float32), valid, panorama, areas)
-    lines, regions, ratios, scatter = [], [], [], []
+    regions = [_region(panorama, segment, config) for segment in segments]
+    reaches = [_region(panorama, far, config) for far in reach]
+    directions, strong, columns, rows = _edge_points(image.astype(np.float32), valid, panorama, regions + reaches)
+    lines, ratios, scatter = [], [], []
     rivals = 0
-    for segment, far in zip(segments, reach, strict=True):
-        region = _region(panorama, segment, config)
-        regions.append(region)
+    for segment, far, region, reach_region in zip(segments, reach, regions, reaches, strict=True):
         inside = _inside(region, columns, rows)
         lon = (
             panorama.angles_from_pixels(region[None, [0, 2]])[0][0],
@@ -219,7 +218,7 @@ def _evidence(
             anchor = _unit(segment[:1])[0] if anchored else None
             if rival is not None and not _anchor_decides(line, rival, anchor, panorama, config):
                 rivals += 1
-            along = _inside(_region(panorama, far, config), columns, rows) & strong
+            along = _inside(reach_region, columns, rows) & strong
             grown = _from_reference_viewpoint(camera, directions[along], far)
             fit = refine_line(grown, np.ones(len(grown)), line.normal, config.inlier_tolerance * panorama.pixel_size())
             spread = grown[fit.inliers] @ fit.normal if fit is not None else np.zeros(0)
