@@ -7,11 +7,16 @@ driver benchmarks are found without ``agf`` importing ``drivers``).
 
 A case that cannot produce a trustworthy figure raises; the harness reports the error under the
 case's name instead of a number.
+
+Timings differ between machines (the same measurement took 137 ms on one 2-core machine and 343 ms
+on another), so every run also times a fixed OpenCV + numpy workload, ``machine.reference_ms``, and
+reports every timing also as a multiple of it (``x_reference``): figures from two machines compare.
 """
 
 from __future__ import annotations
 
 import importlib
+import os
 import statistics
 import time
 from collections.abc import Callable, Iterable
@@ -19,6 +24,9 @@ from dataclasses import dataclass
 from typing import Any
 
 GROUPS = ("vision_ms", "accuracy", "control")
+# Units of a case's timings, by the suffix of its name or of a figure's key, in ms.
+_UNITS_MS = {"ms": 1.0, "s": 1e3, "us": 1e-3}
+_STATISTICS = ("median", "p50", "p90", "p99", "min", "max")
 
 
 @dataclass(frozen=True)
@@ -73,14 +81,72 @@ def registered_cases(modules: Iterable[str]) -> dict[str, BenchCase]:
     return dict(_REGISTRY)
 
 
+def reference_workload() -> None:
+    """A fixed mix of what the vision spends its time on: a blur, a remap and a Sobel on a 1280 x 1280
+    frame, a matrix product and a sort (tens of milliseconds on a 2-core machine)."""
+    import cv2
+    import numpy as np
+
+    rng = np.random.default_rng(0)
+    image = rng.integers(0, 255, (1280, 1280), dtype=np.uint8).astype(np.float32)
+    grid = np.indices((1280, 1280), dtype=np.float32)[::-1] * 0.9 + 40.0
+    blurred = cv2.GaussianBlur(image, (0, 0), 2.0)
+    warped = cv2.remap(blurred, grid[0], grid[1], cv2.INTER_LINEAR)
+    cv2.Sobel(warped, cv2.CV_32F, 1, 0, ksize=3)
+    matrix = rng.standard_normal((300, 300))
+    np.sort((matrix @ matrix.T).ravel())
+
+
+def machine_reference(repeats: int = 7) -> dict[str, Any]:
+    """``reference_ms``: the median time of :func:`reference_workload` on this machine, now."""
+    samples = time_calls(reference_workload, repeats=repeats)
+    return {"reference_ms": statistics.median(samples) * 1e3, "cores": os.cpu_count()}
+
+
+def in_reference_units(name: str, figures: dict[str, Any], reference_ms: float) -> dict[str, Any]:
+    """The timing statistics among ``figures`` as multiples of ``reference_ms``, found by unit suffix:
+    the case's own name (``pose.ms``, ``render.frame_s``, ``control.sync_jitter_us``) for its statistics,
+    a nested figure's key (``timing_ms_median``, ``cycle_s``) for that figure's."""
+    out: dict[str, Any] = {}
+    scale = _unit_ms(name)
+    if scale is not None:
+        # Statistics of one timing, or (``timing_ms_median``) one timing per stage.
+        keys = [k for k in _STATISTICS if k in figures] or list(figures)
+        out |= {k: figures[k] * scale / reference_ms for k in keys if _is_number(figures[k])}
+    for key, value in figures.items():
+        if isinstance(value, dict) and key != "x_reference":
+            nested = in_reference_units(key, value, reference_ms)
+            if nested:
+                out[key] = nested
+    return out
+
+
+def _unit_ms(name: str) -> float | None:
+    for word in reversed(name.replace(".", "_").split("_")):
+        if word in _UNITS_MS:
+            return _UNITS_MS[word]
+    return None
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
 def run_bench(modules: Iterable[str], *, quick: bool, only: str | None = None) -> dict[str, dict[str, Any]]:
-    """Run the cases (those whose name starts with ``only`` if given) and group their figures."""
+    """Run the cases (those whose name starts with ``only`` if given) and group their figures, with
+    ``machine.reference_ms`` timed in the same run and each case's timings in its units (``x_reference``)."""
     report: dict[str, dict[str, Any]] = {group: {} for group in GROUPS}
+    machine = machine_reference()
     for name, case in sorted(registered_cases(modules).items()):
         if only and not name.startswith(only):
             continue
         try:
-            report[case.group][name] = case.run(quick)
+            figures = case.run(quick)
         except Exception as exc:  # a failed case is reported, never turned into a number
             report[case.group][name] = {"error": f"{type(exc).__name__}: {exc}"}
+            continue
+        relative = in_reference_units(name, figures, machine["reference_ms"])
+        report[case.group][name] = figures | ({"x_reference": relative} if relative else {})
+    # Timed again at the end: a machine whose speed changed during the run (another load) shows it here.
+    report["machine"] = machine | {"reference_ms_after": machine_reference()["reference_ms"]}
     return report

@@ -49,7 +49,7 @@ def _plugin(config: Config, role: str) -> Any:
 
 def _cmd_measure(args: argparse.Namespace, config: Config) -> dict[str, Any]:
     image = _existing_file(args.image)
-    measure_command = _capability("agf.vision.measure:measure_command", "pallet measurement (issue 9)")
+    measure_command = _capability("agf.commands.measure:measure_command", "pallet measurement (issue 9)")
     return measure_command(
         config,
         image,
@@ -66,7 +66,7 @@ def _cmd_calibrate(args: argparse.Namespace, config: Config) -> dict[str, Any]:
     width_mm, height_mm = args.panel
     if width_mm <= 0 or height_mm <= 0:
         raise InputError(f"--panel: width and height must be positive millimetres, got {args.panel}")
-    calibrate_command = _capability("agf.vision.calibration:calibrate_command", "camera-to-fork calibration (issue 6)")
+    calibrate_command = _capability("agf.commands.calibrate:calibrate_command", "camera-to-fork calibration (issue 6)")
     return calibrate_command(
         config, images, panel_mm=(width_mm, height_mm), camera=args.camera, out=args.out, force=args.force
     )

@@ -21,7 +21,15 @@ class InputError(AgfError, ValueError):
 
 
 class MeasurementError(AgfError):
-    """The vision could not produce a trustworthy measurement; the message says why."""
+    """The vision could not produce a trustworthy measurement; the message says why.
+
+    ``found`` optionally carries what the vision saw before it refused (candidate pose, edge evidence),
+    so that a refusal can be drawn and explained; it is never a measurement.
+    """
+
+    def __init__(self, message: str, found: object | None = None) -> None:
+        super().__init__(message)
+        self.found = found
 
 
 class NotAvailableError(AgfError):

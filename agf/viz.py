@@ -139,6 +139,32 @@ def tolerance_diagram(
     return image
 
 
+def _top_canvas(
+    gray: NDArray, camera: CameraModel, pallet: PalletType, pose_in_camera: Any, evidence: Any, colour, text: str
+) -> NDArray:
+    """The frame with the face drawn at ``pose_in_camera`` (if any) beside the loaded and unloaded
+    panoramas (if there is ``evidence``), ``text`` along the bottom."""
+    view = cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR)
+    if pose_in_camera is not None:
+        draw_face(view, camera, pose_in_camera, pallet, colour)
+    height = 720
+    view = cv2.resize(view, (int(view.shape[1] * height / view.shape[0]), height))
+    parts = [view]
+    if evidence is not None:
+        panels = [_panorama_panel(gray, camera, evidence[name], height // 2) for name in ("loaded", "unloaded")]
+        width = max(p.shape[1] for p in panels)
+        column = np.vstack([cv2.copyMakeBorder(p, 0, 0, 0, width - p.shape[1], cv2.BORDER_CONSTANT) for p in panels])
+        parts.append(column[:height])
+    canvas = np.hstack(parts)
+    cv2.putText(canvas, text, (10, height - 14), cv2.FONT_HERSHEY_SIMPLEX, 0.6, CYAN, 1, cv2.LINE_AA)
+    return canvas
+
+
+def _stack(rows: list[NDArray]) -> NDArray:
+    width = max(r.shape[1] for r in rows)
+    return np.vstack([cv2.copyMakeBorder(r, 0, 0, 0, width - r.shape[1], cv2.BORDER_CONSTANT) for r in rows])
+
+
 def measurement_overlay(
     frame: NDArray, camera: CameraModel, pallet: PalletType, detail: Any, out: Path, forks: Any = None
 ) -> None:
@@ -146,31 +172,61 @@ def measurement_overlay(
     regions (yellow) and detected lines (green valid, red not); below, the image rectified onto the
     face plane next to the face model, and the tolerance diagram with this measurement's uncertainty."""
     gray = frame if frame.ndim == 2 else cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
-    view = cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR)
-    draw_face(view, camera, detail.measurement.pallet_in_camera, pallet, GREEN)
-    height = 720
-    view = cv2.resize(view, (int(view.shape[1] * height / view.shape[0]), height))
-    panels = [_panorama_panel(gray, camera, detail.evidence[name], height // 2) for name in ("loaded", "unloaded")]
-    width = max(p.shape[1] for p in panels)
-    column = np.vstack([cv2.copyMakeBorder(p, 0, 0, 0, width - p.shape[1], cv2.BORDER_CONSTANT) for p in panels])
-    m = detail.measurement.pallet_in_fork.to_dict()
+    m = detail.measurement
+    d = m.pallet_in_fork.to_dict()
     text = (
-        f"x {m['x_mm']:.1f} mm  y {m['y_mm']:.1f} mm  z {m['z_mm']:.1f} mm  pitch {m['pitch_deg']:.2f} deg  "
-        f"yaw {m['yaw_deg']:.2f} deg  ({'loaded' if detail.measurement.loaded else 'unloaded'})"
+        f"x {d['x_mm']:.1f} mm  y {d['y_mm']:.1f} mm  z {d['z_mm']:.1f} mm  pitch {d['pitch_deg']:.2f} deg  "
+        f"yaw {d['yaw_deg']:.2f} deg  ({'loaded' if m.loaded else 'unloaded'})"
     )
-    canvas = np.hstack([view, column[:height]])
-    cv2.putText(canvas, text, (10, height - 14), cv2.FONT_HERSHEY_SIMPLEX, 0.6, CYAN, 1, cv2.LINE_AA)
-    rectified, model = rectified_face(gray, camera, detail.measurement.pallet_in_camera, pallet)
+    canvas = _top_canvas(gray, camera, pallet, m.pallet_in_camera, detail.evidence, GREEN, text)
+    rectified, model = rectified_face(gray, camera, m.pallet_in_camera, pallet)
     strip = np.vstack([rectified, np.full((6, rectified.shape[1]), 255, np.uint8), model])
     strip = cv2.cvtColor(cv2.resize(strip, (int(strip.shape[1] * 360 / strip.shape[0]), 360)), cv2.COLOR_GRAY2BGR)
-    m = detail.measurement
     parts = [strip]
     if forks is not None:
         parts.append(tolerance_diagram(pallet.pocket_height, forks, m.sigma_z, m.sigma_pitch))
-    bottom = np.hstack(parts)
-    width = max(canvas.shape[1], bottom.shape[1])
-    pad = lambda image: cv2.copyMakeBorder(image, 0, 0, 0, width - image.shape[1], cv2.BORDER_CONSTANT)  # noqa: E731
-    write_png(out, np.vstack([pad(canvas), pad(bottom)]))
+    write_png(out, _stack([canvas, np.hstack(parts)]))
+
+
+def refusal_overlay(
+    frame: NDArray, camera: CameraModel, pallet: PalletType, found: Any, reason: str, out: Path
+) -> None:
+    """A refused measurement explained: the frame with the best face candidate the search found (red),
+    the panoramas of the edge evidence at it, the image rectified at that candidate, and the reason.
+
+    ``found`` is the :class:`~agf.vision.measure.Findings` the refusal carried (None: nothing found)."""
+    gray = frame if frame.ndim == 2 else cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
+    pose = None if found is None else found.pose
+    evidence = None if found is None else found.evidence
+    if pose is None:
+        text = "REFUSED: no face candidate"
+    else:
+        d = pose.pallet_in_fork.to_dict()
+        text = (
+            f"REFUSED. Best candidate (red): x {d['x_mm']:.0f} y {d['y_mm']:.0f} z {d['z_mm']:.0f} mm, "
+            f"similarity {pose.score:.2f}, margin {pose.margin:.2f}"
+        )
+    rows = [_top_canvas(gray, camera, pallet, None if pose is None else pose.pallet_in_camera, evidence, RED, text)]
+    if pose is not None:
+        rectified, model = rectified_face(gray, camera, pose.pallet_in_camera, pallet)
+        strip = np.vstack([rectified, np.full((6, rectified.shape[1]), 255, np.uint8), model])
+        strip = cv2.resize(strip, (int(strip.shape[1] * 300 / strip.shape[0]), 300))
+        rows.append(cv2.cvtColor(strip, cv2.COLOR_GRAY2BGR))
+    rows.append(_text_band(reason, max(r.shape[1] for r in rows)))
+    write_png(out, _stack(rows))
+
+
+def _text_band(text: str, width: int, line_px: int = 24) -> NDArray:
+    """``text`` wrapped onto a white band ``width`` px wide."""
+    chars = max(width // 11, 20)
+    words, lines = text.split(), [""]
+    for word in words:
+        lines[-1:] = [lines[-1] + " " + word] if len(lines[-1]) + len(word) < chars else [lines[-1], word]
+    band = np.full((line_px * len(lines) + 12, width, 3), 255, np.uint8)
+    for k, line in enumerate(lines):
+        origin = (10, line_px * (k + 1))
+        cv2.putText(band, line.strip(), origin, cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 1, cv2.LINE_AA)
+    return band
 
 
 def write_png(path: Path, image: NDArray) -> None:

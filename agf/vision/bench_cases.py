@@ -2,14 +2,23 @@
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
+import yaml
 
 from agf.bench import bench_case, time_calls, timing_summary
 from agf.camera import load_camera
-from agf.paths import DEFAULT_CONFIG
+from agf.errors import MeasurementError
+from agf.geometry import transform_from_dict
+from agf.paths import DEFAULT_CONFIG, repo_path
+from agf.vision.accuracy import AccuracyTally
 from agf.vision.panorama import Panorama, panorama_maps, render_panorama
+
+FOREIGN_RENDERS = repo_path("../shared/data/foreign-renders")
 
 
 def _default_camera():
@@ -39,3 +48,48 @@ def project_us_per_point(quick: bool) -> dict[str, Any]:
     samples = time_calls(lambda: camera.project(points), repeats=3 if quick else 10)
     summary = timing_summary(samples, scale=1e6 / n)
     return {**summary, "points": n, "viewpoint_shift": camera.shift is not None}
+
+
+@bench_case("foreign", "accuracy")
+def foreign_accuracy(quick: bool) -> dict[str, Any]:
+    """Pose and pitch on frames of an independent renderer (``../shared/data/foreign-renders``: other
+    lenses, textures, shadows): within bounds, refused, wrong accepts, errors. Every frame, also with
+    ``--quick``: the set is small and it is the figure that says whether the vision generalises."""
+    return measure_truthed_frames(FOREIGN_RENDERS).summary()
+
+
+def measure_truthed_frames(folder: Path) -> AccuracyTally:
+    """Measure every ``scenes/NAME.yaml`` + ``images/NAME.png`` + ``images/NAME.truth.json`` of ``folder``
+    (the layout of the foreign renders' README) with the default configuration's search volume."""
+    from agf.config import load_config
+    from agf.pallets import load_pallets
+    from agf.vision.measure import measure_pallet
+
+    if not (folder / "scenes").is_dir():
+        raise FileNotFoundError(f"{folder}: no scenes/ folder of truthed frames here")
+    config = load_config(DEFAULT_CONFIG)
+    catalogue = load_pallets(config.vision.pallets)
+    tally = AccuracyTally()
+    for scene_path in sorted((folder / "scenes").glob("*.yaml")):
+        name = scene_path.stem
+        scene = yaml.safe_load(scene_path.read_text())
+        truth = json.loads((folder / "images" / f"{name}.truth.json").read_text())
+        image = cv2.imread(str(folder / "images" / f"{name}.png"), cv2.IMREAD_GRAYSCALE)
+        if image is None:
+            raise FileNotFoundError(f"{folder / 'images' / name}.png: not an image OpenCV can read")
+        try:
+            detail = measure_pallet(
+                image,
+                load_camera(folder / scene["camera"]),
+                transform_from_dict(scene["camera_in_fork"], where=f"{scene_path}: camera_in_fork"),
+                catalogue[scene["pallet"]["type"]],
+                config.vision.search,
+                forks=config.forks,
+            )
+        except MeasurementError as exc:
+            tally.add_refused(name, str(exc))
+            continue
+        m = detail.measurement
+        truth_pose = transform_from_dict(truth["pallet_in_fork"], where=f"{name}.truth.json: pallet_in_fork")
+        tally.add_measured(name, m.pallet_in_fork, truth_pose, m.loaded == truth["loaded"], m.timing_ms)
+    return tally

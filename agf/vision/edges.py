@@ -34,9 +34,16 @@ class EdgeSearch:
 
 
 def search_edges(
-    image: NDArray[np.float32], starts: Array, normals: Array, radius: float, step: float = 0.25
+    image: NDArray[np.float32],
+    starts: Array,
+    normals: Array,
+    radius: float,
+    step: float = 0.25,
+    *,
+    either_polarity: bool = False,
 ) -> EdgeSearch:
-    """Find, along each unit image normal (N, 2), the strongest bright-to-dark step within ``radius`` px.
+    """Find, along each unit image normal (N, 2), the strongest bright-to-dark step within ``radius`` px
+    (with ``either_polarity``, the strongest step of either sign: which side is brighter depends on light).
 
     The profile is sampled bilinearly (``cv2.remap``) from ``image`` (smooth it first), differentiated,
     and the extremum refined by a parabola through its neighbours.
@@ -46,6 +53,8 @@ def search_edges(
     v = (starts[:, 1:2] + normals[:, 1:2] * t).astype(np.float32)
     profile = cv2.remap(image, u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
     slope = -np.gradient(profile, step, axis=1)  # positive where intensity falls along the normal
+    if either_polarity:
+        slope = np.abs(slope)
     best = np.argmax(slope[:, 1:-1], axis=1) + 1  # an extremum on the border is no edge
     rows = np.arange(len(best))
     inner = (best > 0) & (best < len(t) - 1)

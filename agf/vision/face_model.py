@@ -82,6 +82,29 @@ class FaceModel:
                 groups.append(np.full(len(p), g))
         return np.concatenate(points), np.concatenate(normals), np.concatenate(groups)
 
+    def outline_points(self, spacing: float, inset: float = 0.012) -> tuple[Array, Array, NDArray[np.int_]]:
+        """Points (N, 3) on the face's outer outline, unit outward normals (N, 3), and each point's group
+        (N,): 3 the face's top edge, 4 its bottom edge, 5 its two ends (numbered after
+        :meth:`edge_points`' groups, so the two sets can be used together).
+
+        Which side of the outline is brighter depends on the load, the floor and the light, so these
+        normals only give the direction to search along.
+        """
+        w = self.width / 2
+        along_y = _samples(-w + inset, w - inset, spacing)
+        along_z = _samples(self.z_bottom + inset, self.z_top - inset, spacing)
+        edges = [
+            (np.c_[0 * along_y, along_y, 0 * along_y + self.z_top], (0.0, 0.0, 1.0), 3),
+            (np.c_[0 * along_y, along_y, 0 * along_y + self.z_bottom], (0.0, 0.0, -1.0), 4),
+            (np.c_[0 * along_z, 0 * along_z + w, along_z], (0.0, 1.0, 0.0), 5),
+            (np.c_[0 * along_z, 0 * along_z - w, along_z], (0.0, -1.0, 0.0), 5),
+        ]
+        return (
+            np.concatenate([e[0] for e in edges]),
+            np.concatenate([np.tile(e[1], (len(e[0]), 1)) for e in edges]),
+            np.concatenate([np.full(len(e[0]), e[2]) for e in edges]),
+        )
+
     def corners(self) -> Array:
         """The four corners (4, 3) of the face: top-left, top-right, bottom-right, bottom-left."""
         w = self.width / 2

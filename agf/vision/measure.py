@@ -4,31 +4,31 @@ The data flow of paper section III: pose at an assumed pitch -> the loaded and u
 hypotheses -> choose (both valid: unloaded, the paper's rule against background verticals) ->
 the pose refined at the measured pitch (searched again nearby when the first search was ambiguous),
 until pose and pitch agree -> for an unloaded pallet, y, z, yaw and
-pitch from the planes of its two deck edges, x from the face. ``agf measure`` is
-:func:`measure_command` over :func:`measure_pallet`.
+pitch from the planes of its two deck edges, x from the face -> every edge of the face, its outline
+included, where the pose puts it, and no nearby pose in the face's plane explaining them better
+(:mod:`agf.vision.edge_agreement`). ``agf measure`` (:mod:`agf.commands.measure`) calls
+:func:`measure_pallet` and draws what it returns.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from agf.camera import CameraModel, load_camera
-from agf.config import Config, ForkGeometry, SearchVolume, load_calibration
-from agf.errors import InputError, MeasurementError
-from agf.geometry import Transform, transform_from_dict
-from agf.insertion import InsertionConfig, tolerance_margins
-from agf.measurement import PalletMeasurement, pose_json
-from agf.pallets import PalletType, load_pallets, pallet_type
+from agf.camera import CameraModel
+from agf.config import ForkGeometry, SearchVolume
+from agf.errors import MeasurementError
+from agf.geometry import Transform
+from agf.measurement import PalletMeasurement
+from agf.pallets import PalletType
+from agf.vision.edge_agreement import EdgeAgreementConfig, check_face_edges
 from agf.vision.face_model import face_model_from_pallet
 from agf.vision.pallet_pose import (
     PoseEstimate,
@@ -46,6 +46,7 @@ class MeasureConfig:
 
     pose: PoseSearchConfig = field(default_factory=PoseSearchConfig)
     pitch: PitchConfig = field(default_factory=PitchConfig)
+    edges: EdgeAgreementConfig = field(default_factory=EdgeAgreementConfig)
     iterations: int = 6
     # Pose and pitch agree when an iteration moves the pitch by less than this; re-fits jitter by about
     # 0.02 deg, so a tighter value only loops (simulated picks failed on 0.01 deg).
@@ -63,6 +64,15 @@ class MeasureConfig:
     # margin at least the pose search's minimum); a refinement moving it further than this is replaced
     # by a search nearby.
     refine_max: float = 0.01
+
+
+@dataclass(frozen=True)
+class Findings:
+    """What a refused measurement had found when it refused (for the refusal's overlay): the last pose
+    candidate and the last edge evidence, either None when the search did not get that far."""
+
+    pose: PoseEstimate | None
+    evidence: dict[str, PitchEvidence] | None
 
 
 @dataclass(frozen=True)
@@ -89,7 +99,8 @@ def measure_pallet(
 
     Without a prior the pose is first searched at pitch 0; when that measurement fails, again at
     +-half the search volume's ``pitch_max``: a pallet pitched 3-4 deg well below the camera matched
-    its level template 60-300 mm off, and the pitch measured there was refused.
+    its level template 60-300 mm off, and the pitch measured there was refused. A refusal's
+    :class:`MeasurementError` carries the :class:`Findings` of the first attempt in ``found``.
     """
     start = time.perf_counter()
     timing: dict[str, float] = {}
@@ -98,6 +109,7 @@ def measure_pallet(
     face = face_model_from_pallet(pallet)
     # Searched again near a pose of this frame: its rivals were judged in the wide search, so one candidate.
     narrow = dataclasses.replace(config.pose, prior_window=0.04, prior_yaw_window=math.radians(2), candidates=1)
+    seen: dict[str, Any] = {}  # the first pose and evidence, for a refusal's Findings
 
     def pose_at(near: Transform | None, pitch: float, search: PoseSearchConfig) -> PoseEstimate:
         t = time.perf_counter()
@@ -106,6 +118,7 @@ def measure_pallet(
             check=False,
         )
         timing["pose"] = timing.get("pose", 0.0) + (time.perf_counter() - t) * 1e3
+        seen.setdefault("pose", estimate)
         return estimate
 
     def pose_again(pose: PoseEstimate, pitch: float, first: PoseEstimate) -> PoseEstimate:
@@ -138,6 +151,7 @@ def measure_pallet(
         else:
             loaded = before["loaded"]
         timing["pitch"] = timing.get("pitch", 0.0) + (time.perf_counter() - t) * 1e3
+        seen.setdefault("evidence", {"loaded": loaded, "unloaded": unloaded})
         return {"loaded": loaded, "unloaded": unloaded}
 
     def converged(pitch: float) -> tuple[PoseEstimate, PitchEvidence, dict[str, PitchEvidence]]:
@@ -179,15 +193,21 @@ def measure_pallet(
     for assumed in starts:
         try:
             pose, chosen, evidence = converged(assumed)
+            if chosen.hypothesis == "unloaded":
+                pose = onto_deck_edges(pose, chosen)
+            t = time.perf_counter()
+            agreement = check_face_edges(gray, camera, camera_in_fork, pose.pallet_in_fork, face, forks, config.edges)
+            timing["edges"] = timing.get("edges", 0.0) + (time.perf_counter() - t) * 1e3
             break
         except MeasurementError as exc:
             failures.append(str(exc))
     else:
         others = sorted(set(failures[1:]) - {failures[0]})
         also = f" (with the pose searched at pitch +-{math.degrees(volume.pitch_max / 2):.1f} deg too" if others else ""
-        raise MeasurementError(failures[0] + (also + ": " + "; ".join(others) + ")" if others else ""))
-    if chosen.hypothesis == "unloaded":
-        pose = onto_deck_edges(pose, chosen)
+        raise MeasurementError(
+            failures[0] + (also + ": " + "; ".join(others) + ")" if others else ""),
+            found=Findings(seen.get("pose"), seen.get("evidence")),
+        )
     timing["total"] = (time.perf_counter() - start) * 1e3
     measurement = PalletMeasurement(
         pallet_in_camera=pose.pallet_in_camera,
@@ -195,7 +215,8 @@ def measure_pallet(
         loaded=chosen.hypothesis == "loaded",
         sigma_z=max(pose.sigma[2], config.sigma_z_floor),
         sigma_pitch=max(chosen.sigma, config.sigma_pitch_floor),
-        scores={name: e.ratio for name, e in evidence.items()} | {"pose": pose.score, "margin": pose.margin},
+        scores={name: e.ratio for name, e in evidence.items()}
+        | {"pose": pose.score, "margin": pose.margin, "edges": agreement.score},
         timing_ms=timing,
     )
     return MeasureDetail(measurement, pose, evidence)
@@ -235,72 +256,3 @@ def _choose(evidence: dict[str, PitchEvidence]) -> PitchEvidence:
         f"{evidence['unloaded'].ratio:.2f}) nor the load edges (loaded, ratio {evidence['loaded'].ratio:.2f}) "
         "were found along their predicted length"
     )
-
-
-def measure_command(
-    config: Config,
-    image: Path,
-    *,
-    camera: str | None = None,
-    calibration: str | None = None,
-    pallet_type: str | None = None,
-    prior_json: str | None = None,
-    overlay: str | None = None,
-) -> dict[str, Any]:
-    """``agf measure``: DESIGN.md's JSON contract."""
-    frame = cv2.imread(str(image), cv2.IMREAD_GRAYSCALE)
-    if frame is None:
-        raise InputError(f"{image}: not an image OpenCV can read")
-    model = load_camera(camera or config.vision.camera)
-    camera_in_fork = load_calibration(calibration or config.vision.calibration)
-    pallet = _pallet(config, pallet_type)
-    prior = _prior(prior_json)
-    try:
-        detail = measure_pallet(
-            frame, model, camera_in_fork, pallet, config.vision.search, forks=config.forks, prior=prior
-        )
-    except MeasurementError as exc:
-        return {"ok": False, "error": str(exc)}
-    m = detail.measurement
-    result = {
-        "ok": True,
-        "loaded": m.loaded,
-        "pallet_in_fork": pose_json(m.pallet_in_fork),
-        "pallet_in_camera": pose_json(m.pallet_in_camera),
-        "scores": {"loaded": m.scores["loaded"], "unloaded": m.scores["unloaded"]},
-        "uncertainty": {"z_mm": m.sigma_z * 1e3, "pitch_deg": math.degrees(m.sigma_pitch)},
-        "insertion": _insertion_check(m, pallet, config),
-        "timing_ms": dict(m.timing_ms),
-    }
-    if overlay:
-        from agf.viz import measurement_overlay
-
-        measurement_overlay(frame, model, pallet, detail, Path(overlay), forks=config.forks)
-    return result
-
-
-def _insertion_check(m: PalletMeasurement, pallet: PalletType, config: Config) -> dict[str, Any]:
-    """Paper V.A with this measurement's uncertainty (and the drives' residual error) taken off."""
-    settings = InsertionConfig()
-    error_z = settings.sigmas * m.sigma_z + settings.drive_error_z
-    error_tilt = settings.sigmas * m.sigma_pitch + settings.drive_error_tilt
-    margin, margin_tilt = tolerance_margins(error_z, error_tilt, pallet.pocket_height, config.forks)
-    return {"safe": margin > 0 and margin_tilt > 0, "margin_mm": margin * 1e3, "margin_deg": math.degrees(margin_tilt)}
-
-
-def _pallet(config: Config, name: str | None) -> PalletType:
-    return pallet_type(load_pallets(config.vision.pallets), name or config.vision.pallet_type)
-
-
-def _prior(path: str | None) -> Transform | None:
-    if path is None:
-        return None
-    try:
-        data = json.loads(Path(path).read_text())
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{path}: cannot read the prior JSON ({exc})") from exc
-    pose = data.get("pallet_in_fork", data) if isinstance(data, dict) else data
-    try:
-        return transform_from_dict(pose, where=f"{path}: pallet_in_fork")
-    except ValueError as exc:
-        raise InputError(str(exc)) from exc

@@ -601,7 +601,7 @@ def _refine(smooth, camera, camera_in_fork, starts: list[_Params], points, norma
 
 def _step(params: _Params, edges: EdgeSearch, valid, J, radius, points, groups, eye, forks) -> _Fit | None:
     """One robust, group-balanced Gauss-Newton step of :func:`_refine`; None when too few edges are found."""
-    hidden = _occluded(params.transform().apply(points), eye, forks)
+    hidden = hidden_by_forks(params.transform().apply(points), eye, forks)
     usable = valid & edges.valid & ~hidden
     if usable.sum() < 12:
         return None
@@ -673,7 +673,7 @@ def _tukey(offset: Array, usable: NDArray[np.bool_], strength: Array, floor: flo
     return w * np.clip(strength / max(strong, 1e-9), 0.0, 1.0)
 
 
-def _occluded(points_f: Array, camera_f: Array, forks: ForkGeometry | None) -> NDArray[np.bool_]:
+def hidden_by_forks(points_f: Array, camera_f: Array, forks: ForkGeometry | None) -> NDArray[np.bool_]:
     """Which points (fork frame) the fork tines hide from the camera (segment against box slabs)."""
     if forks is None:
         return np.zeros(len(points_f), bool)

@@ -25,6 +25,7 @@ from agf.geometry import Transform
 from agf.pallets import load_pallets
 from agf.paths import DEFAULT_CONFIG, repo_path
 from agf.scene import Scene, load_scene
+from agf.vision.accuracy import AccuracyTally
 from agf.vision.calibration import WITHOUT_SHIFT, Panel, fit_panel
 from agf.vision.face_model import face_model_from_pallet
 from agf.vision.measure import measure_pallet
@@ -99,9 +100,7 @@ def measure_accuracy(quick: bool) -> dict[str, Any]:
     """Pose and pitch on the paper and robustness scenes: errors, detection rate, wrong accepts, timing."""
     config = load_config(DEFAULT_CONFIG)
     catalogue = load_pallets(config.vision.pallets)
-    errors: dict[str, list[float]] = {"x_mm": [], "y_mm": [], "z_mm": [], "pitch_deg": [], "yaw_deg": []}
-    timing: dict[str, list[float]] = {}
-    refused, wrong, measured = [], [], 0
+    tally = AccuracyTally()
     for key in _keys(quick):
         scene = load_scene(SCENES / f"{key}.yaml")
         image = rendered(scene, key)
@@ -115,33 +114,11 @@ def measure_accuracy(quick: bool) -> dict[str, Any]:
                 forks=config.forks,
             )
         except MeasurementError as exc:
-            refused.append(f"{key}: {exc}")
+            tally.add_refused(key, str(exc))
             continue
-        measured += 1
-        est, gt = detail.measurement.pallet_in_fork.to_dict(), scene.pallet.in_fork.to_dict()
-        e = {k: est[k] - gt[k] for k in errors}
-        for k, v in e.items():
-            errors[k].append(abs(v))
-        for stage, ms in detail.measurement.timing_ms.items():
-            timing.setdefault(stage, []).append(ms)
-        if (
-            abs(e["x_mm"]) > 10
-            or abs(e["z_mm"]) > 5
-            or abs(e["pitch_deg"]) > 0.1
-            or detail.measurement.loaded != scene.loaded
-        ):
-            wrong.append(key)
-    total = measured + len(refused)
-    return {
-        "scenes": total,
-        "detection_rate": measured / total if total else 0.0,
-        "wrong_accepts": len(wrong),
-        "wrong": wrong,
-        "refused": refused,
-        "median": {k: statistics.median(v) for k, v in errors.items() if v},
-        "max": {k: max(v) for k, v in errors.items() if v},
-        "timing_ms_median": {k: statistics.median(v) for k, v in timing.items()},
-    }
+        m = detail.measurement
+        tally.add_measured(key, m.pallet_in_fork, scene.pallet.in_fork, m.loaded == scene.loaded, m.timing_ms)
+    return tally.summary()
 
 
 @bench_case("calibrate", "accuracy")

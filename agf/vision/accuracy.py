@@ -1,0 +1,77 @@
+"""Accuracy of measurements against ground truth: errors, detections, refusals and wrong accepts.
+
+One tally for every accuracy figure of ``agf bench`` (the project's own renders, the foreign renders)
+and the accuracy report, so that "within bounds" means the same everywhere: |x| <= 10 mm, |z| <= 5 mm,
+|pitch| <= 0.1 deg (estimate minus truth, fork frame), and the loaded/unloaded hypothesis right. An
+accepted measurement outside them is a wrong accept, the worst outcome there is.
+"""
+
+from __future__ import annotations
+
+import statistics
+from dataclasses import dataclass, field
+from typing import Any
+
+from agf.geometry import Transform
+
+BOUNDS = {"x_mm": 10.0, "z_mm": 5.0, "pitch_deg": 0.1}
+KEYS = ("x_mm", "y_mm", "z_mm", "pitch_deg", "yaw_deg")
+
+
+def pose_errors(estimate: Transform, truth: Transform) -> dict[str, float]:
+    """Estimate minus truth in mm and degrees (``x_mm`` ... ``yaw_deg``)."""
+    est, gt = estimate.to_dict(), truth.to_dict()
+    return {key: est[key] - gt[key] for key in KEYS}
+
+
+def within_bounds(errors: dict[str, float]) -> bool:
+    """Whether the errors are inside :data:`BOUNDS`."""
+    return all(abs(errors[key]) <= bound for key, bound in BOUNDS.items())
+
+
+@dataclass
+class AccuracyTally:
+    """Measurements and refusals of a set of scenes, summarised by :meth:`summary`."""
+
+    errors: dict[str, list[float]] = field(default_factory=lambda: {key: [] for key in KEYS})
+    timing: dict[str, list[float]] = field(default_factory=dict)
+    refused: list[str] = field(default_factory=list)
+    wrong: list[str] = field(default_factory=list)
+    measured: int = 0
+    rows: list[tuple[str, dict[str, float] | None, str]] = field(default_factory=list)  # name, errors, verdict
+
+    def add_measured(
+        self, name: str, estimate: Transform, truth: Transform, right_hypothesis: bool, timing_ms: dict[str, float]
+    ) -> dict[str, float]:
+        """Count one accepted measurement; returns its errors."""
+        errors = pose_errors(estimate, truth)
+        self.measured += 1
+        for key, value in errors.items():
+            self.errors[key].append(abs(value))
+        for stage, ms in timing_ms.items():
+            self.timing.setdefault(stage, []).append(ms)
+        right = within_bounds(errors) and right_hypothesis
+        if not right:
+            self.wrong.append(name)
+        self.rows.append((name, errors, "within bounds" if right else "WRONG ACCEPT"))
+        return errors
+
+    def add_refused(self, name: str, reason: str) -> None:
+        """Count one refusal with its reason."""
+        self.refused.append(f"{name}: {reason}")
+        self.rows.append((name, None, f"refused: {reason}"))
+
+    def summary(self) -> dict[str, Any]:
+        """Scenes, measured within bounds, refused, wrong accepts, median and max absolute errors, timing."""
+        total = self.measured + len(self.refused)
+        return {
+            "scenes": total,
+            "within_bounds": self.measured - len(self.wrong),
+            "detection_rate": self.measured / total if total else 0.0,
+            "wrong_accepts": len(self.wrong),
+            "wrong": list(self.wrong),
+            "refused": list(self.refused),
+            "median": {k: statistics.median(v) for k, v in self.errors.items() if v},
+            "max": {k: max(v) for k, v in self.errors.items() if v},
+            "timing_ms_median": {k: statistics.median(v) for k, v in self.timing.items()},
+        }

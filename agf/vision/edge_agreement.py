@@ -1,0 +1,166 @@
+"""Whether every edge of the pallet's front face is in the image where a measured pose puts it.
+
+The pose fit uses the pocket edges with the polarity of dark pockets; an independent renderer's
+pockets showed the lit bottom deck in their lower half, and the fit settled one deck board (23 mm)
+too high, where the pocket tops met the face's top edge and the pocket bottoms a shadow line inside
+the pocket (foreign render loaded-front-up). A pose that is right puts *every* edge of the face on an
+image edge, the outline included: the face's bottom edge against the bed or floor, its top edge
+against the deck top or the load, its ends against whatever is beside it. This check looks for a
+significant step of either polarity (which side is brighter depends on the light) within a pixel or
+so of each predicted edge, group by group, and refuses the pose where a group is missing.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from agf.camera.base import CameraModel
+from agf.config import ForkGeometry
+from agf.errors import MeasurementError
+from agf.geometry import Transform
+from agf.vision.edges import search_edges
+from agf.vision.face_model import FaceModel
+from agf.vision.pallet_pose import hidden_by_forks
+
+GROUPS = {0: "pocket tops", 1: "pocket bottoms", 2: "pocket sides", 3: "face top", 4: "face bottom", 5: "face ends"}
+
+
+@dataclass(frozen=True)
+class EdgeAgreementConfig:
+    """Tuning of :func:`face_edge_agreement` (SI units, pixels where named)."""
+
+    spacing: float = 0.008  # m between model points along an edge
+    radius_px: float = 5.0  # searched to either side of the predicted edge
+    tolerance_px: float = 1.5  # a step this close to the prediction agrees with it
+    significance: float = 5.0  # a step counts when its slope exceeds this many robust gradient spreads
+    min_seen: int = 6  # a group with fewer visible points (hidden by the forks, out of view) is not counted
+    min_score: float = 0.5  # mean agreement over the counted groups
+    # Face-plane shifts (y, z in m) whose agreement must not beat the pose's: every 5 mm from 10 mm (less
+    # is within a pixel or two, and the measurement's own bounds) up to half a pocket up or down (a deck
+    # board is 19-22 mm), and up to a block's width sideways.
+    shifts: tuple[tuple[float, float], ...] = tuple(
+        [(0.0, round(float(dz), 3)) for dz in np.r_[-0.045:-0.009:0.005, 0.01:0.046:0.005]]
+        + [(dy, 0.0) for dy in (-0.04, -0.02, 0.02, 0.04)]
+    )
+    max_lead: float = 0.02  # by how much a shifted pose may agree better before the pose is refused
+
+
+@dataclass(frozen=True)
+class EdgeAgreement:
+    """Per edge group (names of :data:`GROUPS`): the fraction of its visible points that agree, and how
+    many points were visible; ``score`` is the mean fraction over groups with at least ``min_seen``."""
+
+    fractions: Mapping[str, float]
+    seen: Mapping[str, int]
+    score: float
+
+
+def face_edge_agreement(
+    gray: NDArray,
+    camera: CameraModel,
+    camera_in_fork: Transform,
+    poses_in_fork: list[Transform],
+    face: FaceModel,
+    forks: ForkGeometry | None = None,
+    config: EdgeAgreementConfig = EdgeAgreementConfig(),
+) -> list[EdgeAgreement]:
+    """How well the face's pocket and outline edges agree with ``gray`` (H, W) at each pose.
+
+    Points hidden by the fork tines or projecting outside the image are not counted. One projection for
+    all poses, as the viewpoint-shift solve costs mostly per call.
+    """
+    pocket = face.edge_points(config.spacing)
+    outline = face.outline_points(config.spacing)
+    points, normals, groups = (np.concatenate([a, b]) for a, b in zip(pocket, outline, strict=True))
+    fork_in_camera = camera_in_fork.inverse()
+    all_points = np.concatenate([(fork_in_camera @ T).apply(points) for T in poses_in_fork])
+    ahead = np.concatenate([(fork_in_camera @ T).apply(points + 0.003 * normals) for T in poses_in_fork])
+    pixels, valid = camera.project(np.concatenate([all_points, ahead]))
+    pixels, ahead_px, valid = pixels[: len(all_points)], pixels[len(all_points) :], valid[: len(all_points)]
+    directions = ahead_px - pixels
+    directions /= np.maximum(np.linalg.norm(directions, axis=1, keepdims=True), 1e-12)
+    hidden = np.concatenate(
+        [hidden_by_forks(T.apply(points), camera_in_fork.translation, forks) for T in poses_in_fork]
+    )
+    seen = valid & ~hidden
+    smooth, origin = _smoothed_window(gray, pixels[seen], config.radius_px + 8)
+    found = search_edges(smooth, pixels - origin, directions, config.radius_px, either_polarity=True)
+    agree = (
+        seen
+        & found.valid
+        & (np.abs(found.offset) <= config.tolerance_px)
+        & (found.strength >= config.significance * _gradient_noise(smooth))
+    )
+    n = len(points)
+    return [
+        _per_group(agree[k * n : (k + 1) * n], seen[k * n : (k + 1) * n], groups, config)
+        for k in range(len(poses_in_fork))
+    ]
+
+
+def check_face_edges(
+    gray: NDArray,
+    camera: CameraModel,
+    camera_in_fork: Transform,
+    pallet_in_fork: Transform,
+    face: FaceModel,
+    forks: ForkGeometry | None = None,
+    config: EdgeAgreementConfig = EdgeAgreementConfig(),
+) -> EdgeAgreement:
+    """The pose's :class:`EdgeAgreement`, or :class:`MeasurementError` when its face edges are not in the
+    image, or the face moved within its plane by a board or a block explains them better."""
+    shifted = [
+        Transform(pallet_in_fork.rotation, pallet_in_fork.apply(np.array([0.0, dy, dz]))) for dy, dz in config.shifts
+    ]
+    own, *others = face_edge_agreement(gray, camera, camera_in_fork, [pallet_in_fork, *shifted], face, forks, config)
+    if own.score < config.min_score:
+        weakest = min((g for g in own.fractions if own.seen[g] >= config.min_seen), key=own.fractions.get, default="")
+        raise MeasurementError(
+            f"the image does not confirm the measured pose: its face edges agree {own.score:.0%} "
+            f"(need {config.min_score:.0%}; weakest: {weakest} {own.fractions.get(weakest, 0.0):.0%}); "
+            "refusing rather than guessing"
+        )
+    best = int(np.argmax([a.score for a in others]))
+    if others[best].score > own.score + config.max_lead:
+        dy, dz = config.shifts[best]
+        raise MeasurementError(
+            f"the image does not confirm the measured pose: the face moved {dy * 1e3:+.0f} mm sideways and "
+            f"{dz * 1e3:+.0f} mm up explains its edges better ({others[best].score:.0%} against "
+            f"{own.score:.0%}); refusing rather than guessing"
+        )
+    return own
+
+
+def _per_group(agree: NDArray, seen: NDArray, groups: NDArray, config: EdgeAgreementConfig) -> EdgeAgreement:
+    fractions, counts = {}, {}
+    for g, name in GROUPS.items():
+        in_group = seen & (groups == g)
+        counts[name] = int(in_group.sum())
+        fractions[name] = float(agree[in_group].mean()) if in_group.any() else 0.0
+    counted = [fractions[name] for name in GROUPS.values() if counts[name] >= config.min_seen]
+    return EdgeAgreement(fractions, counts, float(np.mean(counted)) if counted else 0.0)
+
+
+def _gradient_noise(smooth: NDArray[np.float32]) -> float:
+    """Robust spread (grey levels per px) of the gradient magnitude over ``smooth``: most of the window
+    is flat face, floor or load, so this is what noise and texture give, against which a step counts."""
+    gx = cv2.Sobel(smooth, cv2.CV_32F, 1, 0, ksize=3) / 8.0  # Sobel's 3 x 3 kernel sums to 8 per px of slope
+    gy = cv2.Sobel(smooth, cv2.CV_32F, 0, 1, ksize=3) / 8.0
+    magnitude = np.hypot(gx, gy)[::2, ::2]
+    return max(1.4826 * float(np.median(np.abs(magnitude - np.median(magnitude)))), 0.5)
+
+
+def _smoothed_window(gray: NDArray, pixels: NDArray, reach: float) -> tuple[NDArray[np.float32], NDArray]:
+    """``gray`` blurred (sigma 1 px) in the window around ``pixels`` (N, 2), and its top-left (u, v)."""
+    height, width = gray.shape[:2]
+    if len(pixels) == 0:
+        return np.zeros((1, 1), np.float32), np.zeros(2)
+    low = np.maximum(np.floor(pixels.min(axis=0) - reach), 0).astype(int)
+    high = np.minimum(np.ceil(pixels.max(axis=0) + reach) + 1, [width, height]).astype(int)
+    window = gray[low[1] : high[1], low[0] : high[0]].astype(np.float32)
+    return cv2.GaussianBlur(window, (0, 0), 1.0), low.astype(float)
