@@ -10,6 +10,8 @@ JPEG. Everything random comes from the scene's seed, so a scene renders bit-iden
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import json
 import math
 import os
@@ -30,12 +32,15 @@ from agf.geometry import Transform
 from agf.pallets import PalletType, load_pallets, pallet_type
 from agf.paths import repo_path
 from agf.scene import Scene, load_scene
-from drivers.sim.raycast import Box, Plane, cast, screen_rectangles
+from drivers.sim.looks import CameraLight, Look, draw_look
+from drivers.sim.raycast import Box, Plane, cast, nearest, screen_rectangles
+from drivers.sim.textures import reflectance
 
 Array = NDArray[np.float64]
 CATALOGUE = repo_path("configs/pallets.yaml")
 BAND_ROWS = 48
 SKY = 0.62  # albedo-like brightness of rays that hit nothing (a bright hall)
+VIGNETTING = 0.35  # brightness lost at the edge of the field of view (fixed look)
 
 # material -> (albedo, BGR tint)
 MATERIALS = {
@@ -74,14 +79,19 @@ def render(
     camera = camera or load_camera(scene.camera)
     forks = forks or ForkGeometry()
     rng = np.random.default_rng(scene.seed)
-    objects, pallets = build_objects(scene, forks, rng)
+    look = draw_look(scene) if scene.look == "random" else None
+    objects, pallets = build_objects(scene, forks, rng, look)
     offsets = _subpixel_offsets(samples)
     if shading == "geometry":
-        image = _trace(camera, objects, pallets, offsets, 1.0, _shade_geometry)
+        image = _trace(camera, objects, pallets, offsets, 1.0, _shade_geometry, None)
         return np.clip(np.round(image), 0, 255).astype(np.uint8), truth(scene, camera)
-    image = _trace(camera, objects, pallets, offsets, scene.environment.light, _shade)
-    image = _sensor(image, scene, rng)
-    return image, truth(scene, camera)
+    if look is None:
+        shade = functools.partial(_shade, lights=_lights(objects))
+        image = _trace(camera, objects, pallets, offsets, scene.environment.light, shade, VIGNETTING)
+        return _sensor(image, scene, rng), truth(scene, camera)
+    shade = functools.partial(_shade_look, look, look.camera_lights(scene))
+    image = _trace(camera, objects, pallets, offsets, scene.environment.light * look.exposure, shade, look.vignetting)
+    return _sensor_look(image, look, rng), truth(scene, camera)
 
 
 def truth(scene: Scene, camera: CameraModel) -> dict[str, Any]:
@@ -109,9 +119,11 @@ def truth(scene: Scene, camera: CameraModel) -> dict[str, Any]:
     return out
 
 
-def render_command(scene_path: Path, out_png: Path, truth_json: Path) -> dict[str, Any]:
-    """``agf render SCENE --out PNG --truth JSON``."""
+def render_command(scene_path: Path, out_png: Path, truth_json: Path, randomize: bool = False) -> dict[str, Any]:
+    """``agf render SCENE --out PNG --truth JSON [--randomize]``."""
     scene = load_scene(scene_path)
+    if randomize:
+        scene = dataclasses.replace(scene, look="random")
     image, gt = render(scene)
     out_png.parent.mkdir(parents=True, exist_ok=True)
     if not cv2.imwrite(str(out_png), image):
@@ -123,8 +135,11 @@ def render_command(scene_path: Path, out_png: Path, truth_json: Path) -> dict[st
 # -- scene geometry -------------------------------------------------------------------------------
 
 
-def build_objects(scene: Scene, forks: ForkGeometry, rng: np.random.Generator) -> tuple[list, list[_Pallet]]:
-    """Boxes and planes of the scene in the camera frame, and the pallets (for pocket shading)."""
+def build_objects(
+    scene: Scene, forks: ForkGeometry, rng: np.random.Generator, look: Look | None = None
+) -> tuple[list, list[_Pallet]]:
+    """Boxes and planes of the scene in the camera frame, and the pallets (for pocket shading); a random
+    ``look`` adds its rack, clutter and where the support ends."""
     fork_in_camera = scene.camera_in_fork.inverse()
     objects: list[Box | Plane] = []
     pallets: list[_Pallet] = []
@@ -147,8 +162,10 @@ def build_objects(scene: Scene, forks: ForkGeometry, rng: np.random.Generator) -
         objects += _pallet_boxes(in_camera, kind, f"pallet{i}")
         if scene.load is not None:
             objects += _load(in_camera, kind, scene.load.size)
-    objects += _support(scene, kind, target, fork_in_camera, forks)
-    objects += _background(scene, kind, fork_in_camera, rng)
+    objects += _support(scene, kind, target, fork_in_camera, forks, look)
+    objects += _background(scene, kind, fork_in_camera, rng, look)
+    if look is not None:
+        objects += _look_extras(scene, kind, target, fork_in_camera, look, spacing)
     return objects, pallets
 
 
@@ -227,15 +244,18 @@ def _load(in_camera: Transform, kind: PalletType, size: tuple[float, float, floa
     ]
 
 
-def _support(scene: Scene, kind: PalletType, target: Transform, fork_in_camera: Transform, forks: ForkGeometry) -> list:
+def _support(
+    scene: Scene, kind: PalletType, target: Transform, fork_in_camera: Transform, forks: ForkGeometry, look: Look | None
+) -> list:
     """What the pallet stands on: a slab (truck bed or dock) inclined with the pallet, its rear edge just in
-    front of the pallet, and the level hall floor under the forks."""
+    front of the pallet (a random look moves it, up to just under the pallet), and the level hall floor
+    under the forks."""
     bottom = float(scene.pallet.in_fork.apply([0.0, 0.0, kind.deck_bottom])[2])
     hall = min(bottom, -forks.thickness / 2) - 0.03
-    material = "truck-bed" if scene.environment.floor == "truck-bed" else "concrete"
+    material = "truck-bed" if scene.environment.floor == "truck-bed" else ("concrete" if look is None else "dock")
     slab = _box(
         target,
-        (-0.12, 4.0),
+        (-0.12 if look is None else look.bed_edge, 4.0),
         (-3.0, 3.0),
         (kind.deck_bottom - (bottom - hall) - 0.5, kind.deck_bottom),
         material,
@@ -244,10 +264,13 @@ def _support(scene: Scene, kind: PalletType, target: Transform, fork_in_camera: 
     return [slab, _floor(fork_in_camera @ Transform.from_euler(z=hall), "concrete")]
 
 
-def _background(scene: Scene, kind: PalletType, fork_in_camera: Transform, rng: np.random.Generator) -> list:
+def _background(
+    scene: Scene, kind: PalletType, fork_in_camera: Transform, rng: np.random.Generator, look: Look | None
+) -> list:
     """Back wall and rack uprights (vertical lines: the paper's named failure mode)."""
     px, _, pz = scene.pallet.in_fork.translation
-    wall = fork_in_camera @ Transform.from_euler(x=px + 5.0, pitch=-math.pi / 2)
+    distance = 5.0 if look is None else kind.length + look.wall_distance
+    wall = fork_in_camera @ Transform.from_euler(x=px + distance, pitch=-math.pi / 2)
     objects: list[Box | Plane] = [Plane(wall, "wall", "wall")]
     for _ in range(scene.environment.clutter_verticals):
         near = rng.random() < 0.5  # half of them stand right beside the pallet, where load edges are sought
@@ -257,6 +280,31 @@ def _background(scene: Scene, kind: PalletType, fork_in_camera: Transform, rng: 
             _box(fork_in_camera, (x, x + 0.08), (y - 0.04, y + 0.04), (pz - 1.5, pz + 3.5), "upright", "upright")
         )
     return objects
+
+
+def _look_extras(
+    scene: Scene, kind: PalletType, target: Transform, fork_in_camera: Transform, look: Look, spacing: float
+) -> list[Box]:
+    """A random look's rack bay behind the pallet (uprights and beams: long horizontal edges) and its
+    clutter on the support (beside the pallet clear of any neighbour, or behind it)."""
+    px, py, pz = scene.pallet.in_fork.translation
+    boxes = []
+    if look.rack:
+        x = px + kind.length + look.rack_depth
+        for y in (-2.7, 0.0, 2.7):
+            for side in (-0.45, 0.45):
+                boxes.append(_box(fork_in_camera, (x, x + 0.07), (py + y + side - 0.045, py + y + side + 0.045),
+                                  (pz - 1.5, pz + 4.0), "upright", "rack"))
+        for height in look.rack:
+            boxes.append(_box(fork_in_camera, (x - 0.05, x), (py - 4.0, py + 4.0), (pz + height, pz + height + 0.12),
+                              "beam", "beam"))
+    beside = {1.0: scene.environment.neighbours >= 1, -1.0: scene.environment.neighbours >= 2}
+    for item in look.clutter:
+        side = math.copysign(1.0, item.y[0])
+        shift = side * spacing if item.x[0] < kind.length and beside[side] else 0.0
+        boxes.append(_box(target, item.x, (item.y[0] + shift, item.y[1] + shift),
+                          (kind.deck_bottom, kind.deck_bottom + item.height), item.role, "clutter"))
+    return boxes
 
 
 # -- tracing and shading --------------------------------------------------------------------------
@@ -272,16 +320,22 @@ def _subpixel_offsets(samples: int) -> Array:
 
 
 def _trace(
-    camera: CameraModel, objects: list, pallets: list[_Pallet], offsets: Array, light: float, shade: Callable
+    camera: CameraModel,
+    objects: list,
+    pallets: list[_Pallet],
+    offsets: Array,
+    light: float,
+    shade: Callable,
+    vignetting: float | None,
 ) -> Array:
     """Every pixel's colour: the mean over all its sub-sample rays, band by band on one thread per core
-    (the array work that dominates releases the GIL)."""
+    (the array work that dominates releases the GIL). ``vignetting``: brightness lost at the edge of the
+    field of view (None: none)."""
     image = np.zeros((camera.height, camera.width, 3))
     rects = screen_rectangles(camera, objects)
-    lights = _lights(objects)
 
     def band(rows: slice, pixels: Array, where: NDArray[np.bool_]) -> None:
-        image[rows][where] = _sample(camera, objects, pallets, lights, rects, pixels, offsets, shade)
+        image[rows][where] = _sample(camera, objects, pallets, rects, pixels, offsets, shade, vignetting)
 
     # One band thread per core this process may use (a simulate job is pinned to one), one BLAS thread
     # per band thread: OpenBLAS's own threads on small products only contend.
@@ -304,8 +358,8 @@ def _bands(camera: CameraModel):
             yield rows, centres[inside], inside.reshape(uu.shape)
 
 
-def _sample(camera, objects, pallets, lights, rects, pixels: Array, offsets: Array, shade) -> Array:
-    """Mean colour (N, 3) of pixels over the sub-pixel ``offsets``, vignetting included when shading photos."""
+def _sample(camera, objects, pallets, rects, pixels: Array, offsets: Array, shade, vignetting: float | None) -> Array:
+    """Mean colour (N, 3) of pixels over the sub-pixel ``offsets``, vignetting included when given."""
     low, high = pixels.min(axis=0) - 1, pixels.max(axis=0) + 1
     # objects whose rectangle misses these pixels altogether are dropped before any per-ray work
     candidates = [
@@ -320,9 +374,9 @@ def _sample(camera, objects, pallets, lights, rects, pixels: Array, offsets: Arr
         origins, directions = camera.unproject(pixels + offset)
         hits = cast(subset, origins, directions, pixels + offset, subset_rects)
         hits.index = np.where(hits.index >= 0, np.asarray(candidates + [-1])[hits.index], -1).astype(np.int32)
-        sample = shade(objects, pallets, hits, origins, directions, lights)
-        if shade is _shade:
-            sample *= _vignetting(camera, directions)[:, None]
+        sample = shade(objects, pallets, hits, origins, directions)
+        if vignetting is not None:
+            sample *= _vignetting(camera, directions, vignetting)[:, None]
         colour += sample
     return colour / len(offsets)
 
@@ -342,6 +396,7 @@ def _lights(objects: list) -> list[tuple[Array, float]]:
 
 
 def _shade(objects, pallets, hits, origins, directions, lights) -> Array:
+    """The fixed look: two shadowless lamps and an ambient term, the fixed materials and textures."""
     colour = np.full((len(origins), 3), SKY * 255.0)
     hit = np.isfinite(hits.distance)
     if not hit.any():
@@ -367,7 +422,7 @@ def _shade(objects, pallets, hits, origins, directions, lights) -> Array:
     return colour
 
 
-def _shade_geometry(objects, pallets, hits, origins, directions, lights) -> Array:
+def _shade_geometry(objects, pallets, hits, origins, directions) -> Array:
     """200 on the front faces of pallet parts, 50 everywhere else."""
     colour = np.full((len(origins), 3), 50.0)
     if pallets:
@@ -376,6 +431,91 @@ def _shade_geometry(objects, pallets, hits, origins, directions, lights) -> Arra
         front = np.isfinite(hits.distance) & is_pallet[hits.index] & (hits.normal @ forward < -0.99)
         colour[front] = 200.0
     return colour
+
+
+def _shade_look(look: Look, lights: list[CameraLight], objects, pallets, hits, origins, directions) -> Array:
+    """A random look: procedural textures, an ambient term and the look's lights with hard shadows."""
+    colour = np.tile(np.asarray(look.sky) * 255.0, (len(origins), 1))
+    hit = np.flatnonzero(np.isfinite(hits.distance))
+    if not hit.size:
+        return colour
+    idx, normal, local = hits.index[hit], hits.normal[hit], hits.local[hit]
+    points = origins[hit] + hits.distance[hit, None] * directions[hit]
+    albedo = np.empty((len(idx), 3))
+    order = np.argsort(idx, kind="stable")
+    ids, starts = np.unique(idx[order], return_index=True)
+    for i, sel in zip(ids, np.split(order, starts[1:]), strict=True):
+        obj = objects[i]
+        half = obj.half if isinstance(obj, Box) else np.zeros(3)
+        axis = np.argmax(np.abs(local[sel]) / np.maximum(half, 1e-9), axis=1) if isinstance(obj, Box) else 2
+        albedo[sel] = reflectance(look.style(obj.material, int(i)), local[sel], half, np.broadcast_to(axis, len(sel)))
+    irradiance = np.full((len(idx), 3), look.ambient)
+    occluders = [o for o in objects if isinstance(o, Box)]
+    for light in lights:
+        irradiance += light_irradiance(light, occluders, points, normal)[:, None] * light.colour
+    irradiance *= _pocket_occlusion(points, pallets)[:, None]
+    colour[hit] = 255.0 * albedo * irradiance
+    return colour
+
+
+def light_irradiance(light: CameraLight, occluders: list[Box], points: Array, normals: Array) -> Array:
+    """Irradiance (N,) that ``light`` gives points (N, 3) with normals (N, 3): Lambert's cosine, a lamp's
+    inverse-square fall-off, zero in the shadow of any occluder and, for a sun behind a door, outside
+    the patch the door lets through. Shadow rays are culled per occluder in the light's own 2-D view."""
+    if light.direction is not None:
+        towards = np.broadcast_to(light.direction, points.shape)
+        reach = np.full(len(points), np.inf)
+        falloff = np.ones(len(points))
+    else:
+        towards = light.position - points
+        reach = np.linalg.norm(towards, axis=1)
+        towards = towards / reach[:, None]
+        falloff = (light.reference_distance / np.maximum(reach, 0.3)) ** 2
+    cosine = np.einsum("ij,ij->i", normals, towards)
+    lit = np.flatnonzero(cosine > 0)
+    out = np.zeros(len(points))
+    if not lit.size:
+        return out
+    p, w = points[lit] + 2e-4 * normals[lit], np.ascontiguousarray(towards[lit])
+    if light.door is not None:
+        centre, normal, u, v, half_u, half_v = light.door
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = ((centre - p) @ normal) / (w @ normal)
+        q = p + t[:, None] * w - centre
+        through = (t < 0) | ((np.abs(q @ u) < half_u) & (np.abs(q @ v) < half_v))
+        lit, p, w = lit[through], p[through], w[through]
+    coords, rects = _light_view(light, occluders, p)
+    distance, _, _ = nearest(occluders, p.T.astype(np.float32), w.T.astype(np.float32), coords, rects)
+    free = distance >= reach[lit]
+    out[lit[free]] = (light.power * cosine * falloff)[lit[free]]
+    return out
+
+
+def _light_view(light: CameraLight, occluders: list[Box], points: Array) -> tuple[Array, list]:
+    """2-D coordinates of ``points`` seen from the light and each occluder's rectangle there: a parallel
+    projection along the sun's direction, a central one through a lamp (None: test every ray)."""
+    axis = light.direction if light.direction is not None else points.mean(axis=0) - light.position
+    axis = axis / np.linalg.norm(axis)
+    e1 = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    basis = np.c_[e1, np.cross(axis, e1)]
+    signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float)
+
+    def view(p: Array) -> tuple[Array, NDArray[np.bool_]]:
+        if light.direction is not None:
+            return p @ basis, np.ones(len(p), bool)
+        w = p - light.position
+        depth = w @ axis
+        ok = depth > 0.05 * np.linalg.norm(w, axis=1)
+        return (w @ basis) / np.where(ok, depth, 1.0)[:, None], ok
+
+    coords, ok = view(points)
+    coords[~ok] = np.nan  # beside or above a lamp: no occluder's rectangle claims them
+    rects: list = []
+    for box in occluders:
+        corner, valid = view(box.pose.apply(signs * box.half))
+        rects.append(np.r_[corner.min(axis=0), corner.max(axis=0)] if valid.all() else None)
+    return coords, rects
 
 
 def _pocket_occlusion(points: Array, pallets: list[_Pallet]) -> Array:
@@ -417,9 +557,9 @@ def _texture(obj: Box | Plane, local: Array, index: int) -> Array:
     return np.ones(len(local))
 
 
-def _vignetting(camera: CameraModel, directions: Array) -> Array:
+def _vignetting(camera: CameraModel, directions: Array, strength: float) -> Array:
     incidence = np.arccos(np.clip(directions[:, 0], -1.0, 1.0))
-    return 1.0 - 0.35 * (incidence / camera.max_incidence) ** 2
+    return 1.0 - strength * (incidence / camera.max_incidence) ** 2
 
 
 def _sensor(image: Array, scene: Scene, rng: np.random.Generator) -> NDArray[np.uint8]:
@@ -431,5 +571,26 @@ def _sensor(image: Array, scene: Scene, rng: np.random.Generator) -> NDArray[np.
     out = np.clip(np.round(image), 0, 255).astype(np.uint8)
     if noise.jpeg_quality is not None:
         ok, data = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, noise.jpeg_quality])
+        out = cv2.imdecode(data, cv2.IMREAD_COLOR)
+    return out
+
+
+def _sensor_look(image: Array, look: Look, rng: np.random.Generator) -> NDArray[np.uint8]:
+    """A random look's camera: white balance, gamma, motion blur (vertical: the forks move), optics blur,
+    noise growing with brightness (shot noise), 8-bit rounding and JPEG."""
+    image = image * np.asarray(look.white_balance)
+    image = 255.0 * (np.clip(image, 0, None) / 255.0) ** look.gamma
+    if look.motion_px > 0:
+        length = 2 * int(math.ceil(look.motion_px)) + 1
+        kernel = np.zeros((length, 1))
+        kernel[:, 0] = np.maximum(0.0, 1.0 - np.abs(np.linspace(-1, 1, length)) * length / (2 * look.motion_px + 1))
+        image = cv2.filter2D(image, -1, kernel / kernel.sum())
+    if look.blur_px > 0:
+        image = cv2.GaussianBlur(image, (0, 0), look.blur_px)
+    sigma = look.sigma * np.sqrt(0.3 + 0.7 * np.clip(image, 0, 255) / 128.0)
+    image = image + sigma * rng.standard_normal(image.shape, dtype=np.float32)
+    out = np.clip(np.round(image), 0, 255).astype(np.uint8)
+    if look.jpeg_quality is not None:
+        ok, data = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, look.jpeg_quality])
         out = cv2.imdecode(data, cv2.IMREAD_COLOR)
     return out

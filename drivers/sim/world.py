@@ -211,7 +211,7 @@ def run_command(config: Config, *, plots: str | None = None, progress: bool = Tr
 
 def random_scene(rng: np.random.Generator, base: Scene) -> Scene:
     """A random pick: pitch -5..5 deg, fork heights of the paper and more, loaded or not, yaw +-3 deg,
-    stand-off 150..400 mm."""
+    stand-off 150..400 mm, and a random look (textures, lights, sensor) drawn from its seed."""
     pose = Transform.from_euler(
         rng.uniform(0.15, 0.4),
         rng.uniform(-0.03, 0.03),
@@ -233,6 +233,7 @@ def random_scene(rng: np.random.Generator, base: Scene) -> Scene:
         load=load,
         environment=environment,
         seed=int(rng.integers(0, 2**31)),
+        look="random",
     )
 
 
