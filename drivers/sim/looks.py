@@ -36,6 +36,7 @@ class Light:
     direction: tuple[float, float, float] | None = None
     position: tuple[float, float, float] | None = None
     door: tuple[tuple[float, ...], tuple[float, ...], float, float] | None = None
+    shadows: bool = True
 
 
 @dataclass(frozen=True)
@@ -48,6 +49,8 @@ class CameraLight:
     position: Array | None
     reference_distance: float  # lamp: distance at which the irradiance is ``power``
     door: tuple[Array, Array, Array, Array, float, float] | None  # centre, normal, u, v, half u, half v
+    down: Array  # the hall's down direction
+    shadows: bool
 
 
 @dataclass(frozen=True)
@@ -113,7 +116,8 @@ class Look:
                     half_u,
                     half_v,
                 )
-            out.append(CameraLight(light.power, np.asarray(light.colour), direction, position, distance, door))
+            out.append(CameraLight(light.power, np.asarray(light.colour), direction, position, distance, door,
+                                   -R[:, 2], light.shadows))
         return out
 
 
@@ -179,7 +183,8 @@ def draw_look(scene: Scene) -> Look:
 
 
 def _lights(rng: np.random.Generator) -> tuple[Light, ...]:
-    """A sun (most scenes; often through a door) and one to three ceiling lamps."""
+    """A sun (most scenes; often through a door) and one to three ceiling lamps above everything in the
+    scene; the sun and the first lamp cast shadows (more shadows cost more than they show)."""
     lights = []
     if rng.random() < 0.7:
         elevation, azimuth = rng.uniform(math.radians(15), math.radians(60)), rng.uniform(-math.pi, math.pi)
@@ -195,10 +200,10 @@ def _lights(rng: np.random.Generator) -> tuple[Light, ...]:
             door = (tuple(centre), tuple(normal), float(rng.uniform(0.6, 2.0)), float(rng.uniform(1.0, 2.5)))
         colour = _colour(rng, (0.85, 0.95, 1.0), 0.05)
         lights.append(Light(float(rng.uniform(0.6, 1.6)), colour, direction=tuple(direction), door=door))
-    for _ in range(int(rng.integers(1, 4))):
-        position = (rng.uniform(-2.0, 4.0), rng.uniform(-3.0, 3.0), rng.uniform(2.5, 5.5))
+    for n in range(int(rng.integers(1, 4))):
+        position = (rng.uniform(-2.0, 4.0), rng.uniform(-3.0, 3.0), rng.uniform(3.7, 6.0))
         colour = _pick(rng, [(1.0, 1.0, 1.0), (0.6, 0.85, 1.0), (1.0, 0.95, 0.85), (0.9, 1.0, 0.9)])
-        lights.append(Light(float(rng.uniform(0.3, 0.9)), colour, position=position))
+        lights.append(Light(float(rng.uniform(0.3, 0.9)), colour, position=position, shadows=n == 0))
     return tuple(lights)
 
 

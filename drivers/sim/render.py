@@ -32,9 +32,9 @@ from agf.geometry import Transform
 from agf.pallets import PalletType, load_pallets, pallet_type
 from agf.paths import repo_path
 from agf.scene import Scene, load_scene
+from drivers.sim.kernels import pack_lights, pack_objects, shade_look
 from drivers.sim.looks import CameraLight, Look, draw_look
-from drivers.sim.raycast import Box, Plane, cast, nearest, screen_rectangles
-from drivers.sim.textures import reflectance
+from drivers.sim.raycast import Box, Plane, cast, screen_rectangles
 
 Array = NDArray[np.float64]
 CATALOGUE = repo_path("configs/pallets.yaml")
@@ -89,7 +89,7 @@ def render(
         shade = functools.partial(_shade, lights=_lights(objects))
         image = _trace(camera, objects, pallets, offsets, scene.environment.light, shade, VIGNETTING)
         return _sensor(image, scene, rng), truth(scene, camera)
-    shade = functools.partial(_shade_look, look, look.camera_lights(scene))
+    shade = functools.partial(_shade_look, look_arrays(look, look.camera_lights(scene), objects, pallets))
     image = _trace(camera, objects, pallets, offsets, scene.environment.light * look.exposure, shade, look.vignetting)
     return _sensor_look(image, look, rng), truth(scene, camera)
 
@@ -119,12 +119,17 @@ def truth(scene: Scene, camera: CameraModel) -> dict[str, Any]:
     return out
 
 
-def render_command(scene_path: Path, out_png: Path, truth_json: Path, randomize: bool = False) -> dict[str, Any]:
-    """``agf render SCENE --out PNG --truth JSON [--randomize]``."""
+def render_command(
+    scene_path: Path, out_png: Path, truth_json: Path, randomize: bool = False, reference: bool = False
+) -> dict[str, Any]:
+    """``agf render SCENE --out PNG --truth JSON [--randomize] [--reference]``: the campaign renderer
+    (:mod:`drivers.sim.fast_render`) unless ``reference``."""
+    from drivers.sim.fast_render import render_fast  # it builds on this module
+
     scene = load_scene(scene_path)
     if randomize:
         scene = dataclasses.replace(scene, look="random")
-    image, gt = render(scene)
+    image, gt = render(scene) if reference else render_fast(scene)
     out_png.parent.mkdir(parents=True, exist_ok=True)
     if not cv2.imwrite(str(out_png), image):
         raise OSError(f"{out_png}: could not write the image")
@@ -294,7 +299,7 @@ def _look_extras(
         for y in (-2.7, 0.0, 2.7):
             for side in (-0.45, 0.45):
                 boxes.append(_box(fork_in_camera, (x, x + 0.07), (py + y + side - 0.045, py + y + side + 0.045),
-                                  (pz - 1.5, pz + 4.0), "upright", "rack"))
+                                  (pz - 1.5, pz + 3.0), "upright", "rack"))
         for height in look.rack:
             boxes.append(_box(fork_in_camera, (x - 0.05, x), (py - 4.0, py + 4.0), (pz + height, pz + height + 0.12),
                               "beam", "beam"))
@@ -433,89 +438,26 @@ def _shade_geometry(objects, pallets, hits, origins, directions) -> Array:
     return colour
 
 
-def _shade_look(look: Look, lights: list[CameraLight], objects, pallets, hits, origins, directions) -> Array:
-    """A random look: procedural textures, an ambient term and the look's lights with hard shadows."""
-    colour = np.tile(np.asarray(look.sky) * 255.0, (len(origins), 1))
-    hit = np.flatnonzero(np.isfinite(hits.distance))
-    if not hit.size:
-        return colour
-    idx, normal, local = hits.index[hit], hits.normal[hit], hits.local[hit]
-    points = origins[hit] + hits.distance[hit, None] * directions[hit]
-    albedo = np.empty((len(idx), 3))
-    order = np.argsort(idx, kind="stable")
-    ids, starts = np.unique(idx[order], return_index=True)
-    for i, sel in zip(ids, np.split(order, starts[1:]), strict=True):
-        obj = objects[i]
-        half = obj.half if isinstance(obj, Box) else np.zeros(3)
-        axis = np.argmax(np.abs(local[sel]) / np.maximum(half, 1e-9), axis=1) if isinstance(obj, Box) else 2
-        albedo[sel] = reflectance(look.style(obj.material, int(i)), local[sel], half, np.broadcast_to(axis, len(sel)))
-    irradiance = np.full((len(idx), 3), look.ambient)
-    occluders = [o for o in objects if isinstance(o, Box)]
-    for light in lights:
-        irradiance += light_irradiance(light, occluders, points, normal)[:, None] * light.colour
-    irradiance *= _pocket_occlusion(points, pallets)[:, None]
-    colour[hit] = 255.0 * albedo * irradiance
+def _shade_look(packed: tuple, objects, pallets, hits, origins, directions) -> Array:
+    """A random look (``packed`` by :func:`look_arrays`): procedural textures, an ambient term and the
+    look's lights with hard shadows."""
+    colour = np.empty((len(origins), 3))
+    shade_look(origins, directions, hits.distance, hits.normal, hits.local, hits.index.astype(np.int64), *packed,
+               colour)
     return colour
 
 
-def light_irradiance(light: CameraLight, occluders: list[Box], points: Array, normals: Array) -> Array:
-    """Irradiance (N,) that ``light`` gives points (N, 3) with normals (N, 3): Lambert's cosine, a lamp's
-    inverse-square fall-off, zero in the shadow of any occluder and, for a sun behind a door, outside
-    the patch the door lets through. Shadow rays are culled per occluder in the light's own 2-D view."""
-    if light.direction is not None:
-        towards = np.broadcast_to(light.direction, points.shape)
-        reach = np.full(len(points), np.inf)
-        falloff = np.ones(len(points))
-    else:
-        towards = light.position - points
-        reach = np.linalg.norm(towards, axis=1)
-        towards = towards / reach[:, None]
-        falloff = (light.reference_distance / np.maximum(reach, 0.3)) ** 2
-    cosine = np.einsum("ij,ij->i", normals, towards)
-    lit = np.flatnonzero(cosine > 0)
-    out = np.zeros(len(points))
-    if not lit.size:
-        return out
-    p, w = points[lit] + 2e-4 * normals[lit], np.ascontiguousarray(towards[lit])
-    if light.door is not None:
-        centre, normal, u, v, half_u, half_v = light.door
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = ((centre - p) @ normal) / (w @ normal)
-        q = p + t[:, None] * w - centre
-        through = (t < 0) | ((np.abs(q @ u) < half_u) & (np.abs(q @ v) < half_v))
-        lit, p, w = lit[through], p[through], w[through]
-    coords, rects = _light_view(light, occluders, p)
-    distance, _, _ = nearest(occluders, p.T.astype(np.float32), w.T.astype(np.float32), coords, rects)
-    free = distance >= reach[lit]
-    out[lit[free]] = (light.power * cosine * falloff)[lit[free]]
-    return out
-
-
-def _light_view(light: CameraLight, occluders: list[Box], points: Array) -> tuple[Array, list]:
-    """2-D coordinates of ``points`` seen from the light and each occluder's rectangle there: a parallel
-    projection along the sun's direction, a central one through a lamp (None: test every ray)."""
-    axis = light.direction if light.direction is not None else points.mean(axis=0) - light.position
-    axis = axis / np.linalg.norm(axis)
-    e1 = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
-    e1 /= np.linalg.norm(e1)
-    basis = np.c_[e1, np.cross(axis, e1)]
-    signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float)
-
-    def view(p: Array) -> tuple[Array, NDArray[np.bool_]]:
-        if light.direction is not None:
-            return p @ basis, np.ones(len(p), bool)
-        w = p - light.position
-        depth = w @ axis
-        ok = depth > 0.05 * np.linalg.norm(w, axis=1)
-        return (w @ basis) / np.where(ok, depth, 1.0)[:, None], ok
-
-    coords, ok = view(points)
-    coords[~ok] = np.nan  # beside or above a lamp: no occluder's rectangle claims them
-    rects: list = []
-    for box in occluders:
-        corner, valid = view(box.pose.apply(signs * box.half))
-        rects.append(np.r_[corner.min(axis=0), corner.max(axis=0)] if valid.all() else None)
-    return coords, rects
+def look_arrays(look: Look, lights: list[CameraLight], objects: list, pallets: list[_Pallet]) -> tuple:
+    """The arguments of :func:`drivers.sim.kernels.shade_look` after the hits: objects, lights, pallets."""
+    kind, rotation, centre, half, _ = objects_packed = pack_objects(
+        objects, [look.style(o.material, i) for i, o in enumerate(objects)]
+    )
+    packed_pallets = np.array(
+        [[*p.in_camera.rotation.ravel(), *p.in_camera.translation, p.kind.length, p.kind.width,
+          p.kind.pocket_height, p.kind.deck_bottom] for p in pallets]
+    ).reshape(len(pallets), 16)
+    return (*objects_packed, *pack_lights(lights, kind, rotation, centre, half), packed_pallets, look.ambient,
+            np.asarray(look.sky))
 
 
 def _pocket_occlusion(points: Array, pallets: list[_Pallet]) -> Array:
@@ -577,19 +519,21 @@ def _sensor(image: Array, scene: Scene, rng: np.random.Generator) -> NDArray[np.
 
 def _sensor_look(image: Array, look: Look, rng: np.random.Generator) -> NDArray[np.uint8]:
     """A random look's camera: white balance, gamma, motion blur (vertical: the forks move), optics blur,
-    noise growing with brightness (shot noise), 8-bit rounding and JPEG."""
-    image = image * np.asarray(look.white_balance)
-    image = 255.0 * (np.clip(image, 0, None) / 255.0) ** look.gamma
+    noise growing with brightness (shot noise), 8-bit rounding and JPEG (float32 OpenCV work: a frame
+    has 11 million values)."""
+    image = image.astype(np.float32) * (np.asarray(look.white_balance) / 255.0).astype(np.float32)
+    image = cv2.pow(np.maximum(image, 0.0, out=image), look.gamma) * 255.0
     if look.motion_px > 0:
         length = 2 * int(math.ceil(look.motion_px)) + 1
-        kernel = np.zeros((length, 1))
-        kernel[:, 0] = np.maximum(0.0, 1.0 - np.abs(np.linspace(-1, 1, length)) * length / (2 * look.motion_px + 1))
-        image = cv2.filter2D(image, -1, kernel / kernel.sum())
+        kernel = np.maximum(0.0, 1.0 - np.abs(np.linspace(-1, 1, length)) * length / (2 * look.motion_px + 1))
+        image = cv2.filter2D(image, -1, (kernel / kernel.sum()).astype(np.float32)[:, None])
     if look.blur_px > 0:
         image = cv2.GaussianBlur(image, (0, 0), look.blur_px)
-    sigma = look.sigma * np.sqrt(0.3 + 0.7 * np.clip(image, 0, 255) / 128.0)
-    image = image + sigma * rng.standard_normal(image.shape, dtype=np.float32)
-    out = np.clip(np.round(image), 0, 255).astype(np.uint8)
+    sigma = cv2.sqrt(cv2.min(np.maximum(image, 0.0), 255.0) * np.float32(0.7 / 128.0) + np.float32(0.3))
+    noise = np.empty_like(image)
+    cv2.setRNGSeed(int(rng.integers(1 << 31)))
+    cv2.randn(noise, 0.0, look.sigma)
+    out = np.rint(np.clip(image + sigma * noise, 0, 255)).astype(np.uint8)
     if look.jpeg_quality is not None:
         ok, data = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, look.jpeg_quality])
         out = cv2.imdecode(data, cv2.IMREAD_COLOR)
