@@ -74,7 +74,9 @@ def _cmd_calibrate(args: argparse.Namespace, config: Config) -> dict[str, Any]:
 
 def _cmd_render(args: argparse.Namespace, config: Config) -> dict[str, Any]:
     scene = _existing_file(args.scene)
-    return _plugin(config, "renderer")(scene, Path(args.out), Path(args.truth))
+    return _plugin(config, "renderer")(
+        scene, Path(args.out), Path(args.truth), randomize=args.randomize, reference=args.reference
+    )
 
 
 def _cmd_simulate(args: argparse.Namespace, config: Config) -> dict[str, Any]:
@@ -144,6 +146,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scene", help="scene YAML")
     p.add_argument("--out", required=True, help="output PNG")
     p.add_argument("--truth", required=True, help="output ground-truth JSON")
+    p.add_argument(
+        "--randomize", action="store_true", help="a random look drawn from the scene's seed (as 'look: random')"
+    )
+    p.add_argument(
+        "--reference", action="store_true", help="the reference renderer (4 rays per pixel everywhere; slow)"
+    )
     p.set_defaults(handler=_cmd_render)
 
     p = sub.add_parser("simulate", parents=[common], help="whole picks in the simulated world over CAN")

@@ -8,16 +8,22 @@ load: {size_mm: [1000, 1000, 800]}            # or null / absent: unloaded
 environment: {floor: truck-bed, clutter_verticals: 8, light: 1.0, neighbours: 0}
 noise: {sigma: 2.0, blur_px: 0.5, jpeg_quality: 90}
 seed: 7
+look: fixed                                   # or random: textures, lights, sensor drawn from the seed
 ```
 
 A calibration scene has ``panel: {size_mm: [W, H], thickness_mm: T}`` instead of ``pallet`` and
 ``load``: W across the forks (fork Y), H along them (fork X), lying on the forks with its front
 edge centred on the fork origin. Defaults: no load, a level concrete floor, no clutter, light 1.0,
-no neighbours, noise sigma 2.0 grey levels, blur 0.5 px, JPEG quality 90 (null: no JPEG), seed 0.
+no neighbours, noise sigma 2.0 grey levels, blur 0.5 px, JPEG quality 90 (null: no JPEG), seed 0,
+look fixed. ``look: random`` draws the scene's appearance from its seed (surface textures, lights and
+hard shadows, where the support ends, rack and clutter, exposure, white balance, noise, blur, JPEG;
+the scene's ``light`` then scales the drawn exposure and ``noise`` the drawn noise and blur); the
+pallet's geometry, and so the ground truth, stays exactly as given.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -106,6 +112,7 @@ class Scene:
     noise: Noise = field(default_factory=Noise)
     seed: int = 0
     panel: Panel | None = None
+    look: Literal["fixed", "random"] = "fixed"
 
     @property
     def loaded(self) -> bool:
@@ -132,6 +139,4 @@ def load_scene(path: str | Path) -> Scene:
                 f"{child(where, 'pallet.type')}: unknown pallet type {scene.pallet.type!r}; "
                 f"the catalogue configs/pallets.yaml has {sorted(catalogue)}"
             )
-    return Scene(
-        camera, scene.camera_in_fork, scene.pallet, scene.load, scene.environment, scene.noise, scene.seed, scene.panel
-    )
+    return dataclasses.replace(scene, camera=camera)

@@ -54,10 +54,17 @@ def cast(objects: list[Box | Plane], origins: Array, directions: Array, pixels: 
     An object is intersected only by the rays whose pixel lies in its screen rectangle ``rects[i]``
     (None: all rays), so the cost grows with the area objects cover, not with their number.
     """
-    n = len(origins)
-    distance, index, face = np.full(n, np.inf), np.full(n, -1, np.int32), np.zeros(n, np.int8)
     # (3, N) layout: the per-object rotation becomes one BLAS product on contiguous rows
     all_o, all_d = np.ascontiguousarray(origins.T, np.float32), np.ascontiguousarray(directions.T, np.float32)
+    distance, index, face = nearest(objects, all_o, all_d, pixels, rects)
+    return _surface(objects, all_o, all_d, distance, index, face)
+
+
+def nearest(objects: list[Box | Plane], all_o: NDArray, all_d: NDArray, pixels: Array, rects: list) -> tuple:
+    """Distance (N,), object index (N,, -1 for none) and face code (N,) of the nearest hits of rays given
+    as (3, N) float32 arrays; ``pixels`` (N, 2) are any 2-D coordinates in which ``rects`` bound the objects."""
+    n = all_o.shape[1]
+    distance, index, face = np.full(n, np.inf), np.full(n, -1, np.int32), np.zeros(n, np.int8)
     for i, obj in enumerate(objects):
         rect = rects[i]
         if rect is None:
@@ -75,7 +82,7 @@ def cast(objects: list[Box | Plane], origins: Array, directions: Array, pixels: 
         closer = t < distance[rows]
         rows = np.flatnonzero(closer) if rect is None else rows[closer]
         distance[rows], index[rows], face[rows] = t[closer], i, f[closer]
-    return _surface(objects, all_o, all_d, distance, index, face)
+    return distance, index, face
 
 
 def _surface(objects: list, origins: Array, directions: Array, distance: Array, index: NDArray, face: NDArray) -> Hits:

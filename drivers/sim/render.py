@@ -10,6 +10,8 @@ JPEG. Everything random comes from the scene's seed, so a scene renders bit-iden
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import json
 import math
 import os
@@ -30,12 +32,15 @@ from agf.geometry import Transform
 from agf.pallets import PalletType, load_pallets, pallet_type
 from agf.paths import repo_path
 from agf.scene import Scene, load_scene
+from drivers.sim.kernels import pack_lights, pack_objects, shade_look
+from drivers.sim.looks import CameraLight, Look, draw_look
 from drivers.sim.raycast import Box, Plane, cast, screen_rectangles
 
 Array = NDArray[np.float64]
 CATALOGUE = repo_path("configs/pallets.yaml")
 BAND_ROWS = 48
 SKY = 0.62  # albedo-like brightness of rays that hit nothing (a bright hall)
+VIGNETTING = 0.35  # brightness lost at the edge of the field of view (fixed look)
 
 # material -> (albedo, BGR tint)
 MATERIALS = {
@@ -74,14 +79,19 @@ def render(
     camera = camera or load_camera(scene.camera)
     forks = forks or ForkGeometry()
     rng = np.random.default_rng(scene.seed)
-    objects, pallets = build_objects(scene, forks, rng)
+    look = draw_look(scene) if scene.look == "random" else None
+    objects, pallets = build_objects(scene, forks, rng, look)
     offsets = _subpixel_offsets(samples)
     if shading == "geometry":
-        image = _trace(camera, objects, pallets, offsets, 1.0, _shade_geometry)
+        image = _trace(camera, objects, pallets, offsets, 1.0, _shade_geometry, None)
         return np.clip(np.round(image), 0, 255).astype(np.uint8), truth(scene, camera)
-    image = _trace(camera, objects, pallets, offsets, scene.environment.light, _shade)
-    image = _sensor(image, scene, rng)
-    return image, truth(scene, camera)
+    if look is None:
+        shade = functools.partial(_shade, lights=_lights(objects))
+        image = _trace(camera, objects, pallets, offsets, scene.environment.light, shade, VIGNETTING)
+        return _sensor(image, scene, rng), truth(scene, camera)
+    shade = functools.partial(_shade_look, look_arrays(look, look.camera_lights(scene), objects, pallets))
+    image = _trace(camera, objects, pallets, offsets, scene.environment.light * look.exposure, shade, look.vignetting)
+    return _sensor_look(image, look, rng), truth(scene, camera)
 
 
 def truth(scene: Scene, camera: CameraModel) -> dict[str, Any]:
@@ -109,10 +119,17 @@ def truth(scene: Scene, camera: CameraModel) -> dict[str, Any]:
     return out
 
 
-def render_command(scene_path: Path, out_png: Path, truth_json: Path) -> dict[str, Any]:
-    """``agf render SCENE --out PNG --truth JSON``."""
+def render_command(
+    scene_path: Path, out_png: Path, truth_json: Path, randomize: bool = False, reference: bool = False
+) -> dict[str, Any]:
+    """``agf render SCENE --out PNG --truth JSON [--randomize] [--reference]``: the campaign renderer
+    (:mod:`drivers.sim.fast_render`) unless ``reference``."""
+    from drivers.sim.fast_render import render_fast  # it builds on this module
+
     scene = load_scene(scene_path)
-    image, gt = render(scene)
+    if randomize:
+        scene = dataclasses.replace(scene, look="random")
+    image, gt = render(scene) if reference else render_fast(scene)
     out_png.parent.mkdir(parents=True, exist_ok=True)
     if not cv2.imwrite(str(out_png), image):
         raise OSError(f"{out_png}: could not write the image")
@@ -123,8 +140,11 @@ def render_command(scene_path: Path, out_png: Path, truth_json: Path) -> dict[st
 # -- scene geometry -------------------------------------------------------------------------------
 
 
-def build_objects(scene: Scene, forks: ForkGeometry, rng: np.random.Generator) -> tuple[list, list[_Pallet]]:
-    """Boxes and planes of the scene in the camera frame, and the pallets (for pocket shading)."""
+def build_objects(
+    scene: Scene, forks: ForkGeometry, rng: np.random.Generator, look: Look | None = None
+) -> tuple[list, list[_Pallet]]:
+    """Boxes and planes of the scene in the camera frame, and the pallets (for pocket shading); a random
+    ``look`` adds its rack, clutter and where the support ends."""
     fork_in_camera = scene.camera_in_fork.inverse()
     objects: list[Box | Plane] = []
     pallets: list[_Pallet] = []
@@ -147,8 +167,10 @@ def build_objects(scene: Scene, forks: ForkGeometry, rng: np.random.Generator) -
         objects += _pallet_boxes(in_camera, kind, f"pallet{i}")
         if scene.load is not None:
             objects += _load(in_camera, kind, scene.load.size)
-    objects += _support(scene, kind, target, fork_in_camera, forks)
-    objects += _background(scene, kind, fork_in_camera, rng)
+    objects += _support(scene, kind, target, fork_in_camera, forks, look)
+    objects += _background(scene, kind, fork_in_camera, rng, look)
+    if look is not None:
+        objects += _look_extras(scene, kind, target, fork_in_camera, look, spacing)
     return objects, pallets
 
 
@@ -227,15 +249,18 @@ def _load(in_camera: Transform, kind: PalletType, size: tuple[float, float, floa
     ]
 
 
-def _support(scene: Scene, kind: PalletType, target: Transform, fork_in_camera: Transform, forks: ForkGeometry) -> list:
+def _support(
+    scene: Scene, kind: PalletType, target: Transform, fork_in_camera: Transform, forks: ForkGeometry, look: Look | None
+) -> list:
     """What the pallet stands on: a slab (truck bed or dock) inclined with the pallet, its rear edge just in
-    front of the pallet, and the level hall floor under the forks."""
+    front of the pallet (a random look moves it, up to just under the pallet), and the level hall floor
+    under the forks."""
     bottom = float(scene.pallet.in_fork.apply([0.0, 0.0, kind.deck_bottom])[2])
     hall = min(bottom, -forks.thickness / 2) - 0.03
-    material = "truck-bed" if scene.environment.floor == "truck-bed" else "concrete"
+    material = "truck-bed" if scene.environment.floor == "truck-bed" else ("concrete" if look is None else "dock")
     slab = _box(
         target,
-        (-0.12, 4.0),
+        (-0.12 if look is None else look.bed_edge, 4.0),
         (-3.0, 3.0),
         (kind.deck_bottom - (bottom - hall) - 0.5, kind.deck_bottom),
         material,
@@ -244,10 +269,13 @@ def _support(scene: Scene, kind: PalletType, target: Transform, fork_in_camera: 
     return [slab, _floor(fork_in_camera @ Transform.from_euler(z=hall), "concrete")]
 
 
-def _background(scene: Scene, kind: PalletType, fork_in_camera: Transform, rng: np.random.Generator) -> list:
+def _background(
+    scene: Scene, kind: PalletType, fork_in_camera: Transform, rng: np.random.Generator, look: Look | None
+) -> list:
     """Back wall and rack uprights (vertical lines: the paper's named failure mode)."""
     px, _, pz = scene.pallet.in_fork.translation
-    wall = fork_in_camera @ Transform.from_euler(x=px + 5.0, pitch=-math.pi / 2)
+    distance = 5.0 if look is None else kind.length + look.wall_distance
+    wall = fork_in_camera @ Transform.from_euler(x=px + distance, pitch=-math.pi / 2)
     objects: list[Box | Plane] = [Plane(wall, "wall", "wall")]
     for _ in range(scene.environment.clutter_verticals):
         near = rng.random() < 0.5  # half of them stand right beside the pallet, where load edges are sought
@@ -257,6 +285,31 @@ def _background(scene: Scene, kind: PalletType, fork_in_camera: Transform, rng: 
             _box(fork_in_camera, (x, x + 0.08), (y - 0.04, y + 0.04), (pz - 1.5, pz + 3.5), "upright", "upright")
         )
     return objects
+
+
+def _look_extras(
+    scene: Scene, kind: PalletType, target: Transform, fork_in_camera: Transform, look: Look, spacing: float
+) -> list[Box]:
+    """A random look's rack bay behind the pallet (uprights and beams: long horizontal edges) and its
+    clutter on the support (beside the pallet clear of any neighbour, or behind it)."""
+    px, py, pz = scene.pallet.in_fork.translation
+    boxes = []
+    if look.rack:
+        x = px + kind.length + look.rack_depth
+        for y in (-2.7, 0.0, 2.7):
+            for side in (-0.45, 0.45):
+                boxes.append(_box(fork_in_camera, (x, x + 0.07), (py + y + side - 0.045, py + y + side + 0.045),
+                                  (pz - 1.5, pz + 3.0), "upright", "rack"))
+        for height in look.rack:
+            boxes.append(_box(fork_in_camera, (x - 0.05, x), (py - 4.0, py + 4.0), (pz + height, pz + height + 0.12),
+                              "beam", "beam"))
+    beside = {1.0: scene.environment.neighbours >= 1, -1.0: scene.environment.neighbours >= 2}
+    for item in look.clutter:
+        side = math.copysign(1.0, item.y[0])
+        shift = side * spacing if item.x[0] < kind.length and beside[side] else 0.0
+        boxes.append(_box(target, item.x, (item.y[0] + shift, item.y[1] + shift),
+                          (kind.deck_bottom, kind.deck_bottom + item.height), item.role, "clutter"))
+    return boxes
 
 
 # -- tracing and shading --------------------------------------------------------------------------
@@ -272,16 +325,22 @@ def _subpixel_offsets(samples: int) -> Array:
 
 
 def _trace(
-    camera: CameraModel, objects: list, pallets: list[_Pallet], offsets: Array, light: float, shade: Callable
+    camera: CameraModel,
+    objects: list,
+    pallets: list[_Pallet],
+    offsets: Array,
+    light: float,
+    shade: Callable,
+    vignetting: float | None,
 ) -> Array:
     """Every pixel's colour: the mean over all its sub-sample rays, band by band on one thread per core
-    (the array work that dominates releases the GIL)."""
+    (the array work that dominates releases the GIL). ``vignetting``: brightness lost at the edge of the
+    field of view (None: none)."""
     image = np.zeros((camera.height, camera.width, 3))
     rects = screen_rectangles(camera, objects)
-    lights = _lights(objects)
 
     def band(rows: slice, pixels: Array, where: NDArray[np.bool_]) -> None:
-        image[rows][where] = _sample(camera, objects, pallets, lights, rects, pixels, offsets, shade)
+        image[rows][where] = _sample(camera, objects, pallets, rects, pixels, offsets, shade, vignetting)
 
     # One band thread per core this process may use (a simulate job is pinned to one), one BLAS thread
     # per band thread: OpenBLAS's own threads on small products only contend.
@@ -304,8 +363,8 @@ def _bands(camera: CameraModel):
             yield rows, centres[inside], inside.reshape(uu.shape)
 
 
-def _sample(camera, objects, pallets, lights, rects, pixels: Array, offsets: Array, shade) -> Array:
-    """Mean colour (N, 3) of pixels over the sub-pixel ``offsets``, vignetting included when shading photos."""
+def _sample(camera, objects, pallets, rects, pixels: Array, offsets: Array, shade, vignetting: float | None) -> Array:
+    """Mean colour (N, 3) of pixels over the sub-pixel ``offsets``, vignetting included when given."""
     low, high = pixels.min(axis=0) - 1, pixels.max(axis=0) + 1
     # objects whose rectangle misses these pixels altogether are dropped before any per-ray work
     candidates = [
@@ -320,9 +379,9 @@ def _sample(camera, objects, pallets, lights, rects, pixels: Array, offsets: Arr
         origins, directions = camera.unproject(pixels + offset)
         hits = cast(subset, origins, directions, pixels + offset, subset_rects)
         hits.index = np.where(hits.index >= 0, np.asarray(candidates + [-1])[hits.index], -1).astype(np.int32)
-        sample = shade(objects, pallets, hits, origins, directions, lights)
-        if shade is _shade:
-            sample *= _vignetting(camera, directions)[:, None]
+        sample = shade(objects, pallets, hits, origins, directions)
+        if vignetting is not None:
+            sample *= _vignetting(camera, directions, vignetting)[:, None]
         colour += sample
     return colour / len(offsets)
 
@@ -342,6 +401,7 @@ def _lights(objects: list) -> list[tuple[Array, float]]:
 
 
 def _shade(objects, pallets, hits, origins, directions, lights) -> Array:
+    """The fixed look: two shadowless lamps and an ambient term, the fixed materials and textures."""
     colour = np.full((len(origins), 3), SKY * 255.0)
     hit = np.isfinite(hits.distance)
     if not hit.any():
@@ -367,7 +427,7 @@ def _shade(objects, pallets, hits, origins, directions, lights) -> Array:
     return colour
 
 
-def _shade_geometry(objects, pallets, hits, origins, directions, lights) -> Array:
+def _shade_geometry(objects, pallets, hits, origins, directions) -> Array:
     """200 on the front faces of pallet parts, 50 everywhere else."""
     colour = np.full((len(origins), 3), 50.0)
     if pallets:
@@ -376,6 +436,28 @@ def _shade_geometry(objects, pallets, hits, origins, directions, lights) -> Arra
         front = np.isfinite(hits.distance) & is_pallet[hits.index] & (hits.normal @ forward < -0.99)
         colour[front] = 200.0
     return colour
+
+
+def _shade_look(packed: tuple, objects, pallets, hits, origins, directions) -> Array:
+    """A random look (``packed`` by :func:`look_arrays`): procedural textures, an ambient term and the
+    look's lights with hard shadows."""
+    colour = np.empty((len(origins), 3))
+    shade_look(origins, directions, hits.distance, hits.normal, hits.local, hits.index.astype(np.int64), *packed,
+               colour)
+    return colour
+
+
+def look_arrays(look: Look, lights: list[CameraLight], objects: list, pallets: list[_Pallet]) -> tuple:
+    """The arguments of :func:`drivers.sim.kernels.shade_look` after the hits: objects, lights, pallets."""
+    kind, rotation, centre, half, _ = objects_packed = pack_objects(
+        objects, [look.style(o.material, i) for i, o in enumerate(objects)]
+    )
+    packed_pallets = np.array(
+        [[*p.in_camera.rotation.ravel(), *p.in_camera.translation, p.kind.length, p.kind.width,
+          p.kind.pocket_height, p.kind.deck_bottom] for p in pallets]
+    ).reshape(len(pallets), 16)
+    return (*objects_packed, *pack_lights(lights, kind, rotation, centre, half), packed_pallets, look.ambient,
+            np.asarray(look.sky))
 
 
 def _pocket_occlusion(points: Array, pallets: list[_Pallet]) -> Array:
@@ -417,9 +499,9 @@ def _texture(obj: Box | Plane, local: Array, index: int) -> Array:
     return np.ones(len(local))
 
 
-def _vignetting(camera: CameraModel, directions: Array) -> Array:
+def _vignetting(camera: CameraModel, directions: Array, strength: float) -> Array:
     incidence = np.arccos(np.clip(directions[:, 0], -1.0, 1.0))
-    return 1.0 - 0.35 * (incidence / camera.max_incidence) ** 2
+    return 1.0 - strength * (incidence / camera.max_incidence) ** 2
 
 
 def _sensor(image: Array, scene: Scene, rng: np.random.Generator) -> NDArray[np.uint8]:
@@ -431,5 +513,28 @@ def _sensor(image: Array, scene: Scene, rng: np.random.Generator) -> NDArray[np.
     out = np.clip(np.round(image), 0, 255).astype(np.uint8)
     if noise.jpeg_quality is not None:
         ok, data = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, noise.jpeg_quality])
+        out = cv2.imdecode(data, cv2.IMREAD_COLOR)
+    return out
+
+
+def _sensor_look(image: Array, look: Look, rng: np.random.Generator) -> NDArray[np.uint8]:
+    """A random look's camera: white balance, gamma, motion blur (vertical: the forks move), optics blur,
+    noise growing with brightness (shot noise), 8-bit rounding and JPEG (float32 OpenCV work: a frame
+    has 11 million values)."""
+    image = image.astype(np.float32) * (np.asarray(look.white_balance) / 255.0).astype(np.float32)
+    image = cv2.pow(np.maximum(image, 0.0, out=image), look.gamma) * 255.0
+    if look.motion_px > 0:
+        length = 2 * int(math.ceil(look.motion_px)) + 1
+        kernel = np.maximum(0.0, 1.0 - np.abs(np.linspace(-1, 1, length)) * length / (2 * look.motion_px + 1))
+        image = cv2.filter2D(image, -1, (kernel / kernel.sum()).astype(np.float32)[:, None])
+    if look.blur_px > 0:
+        image = cv2.GaussianBlur(image, (0, 0), look.blur_px)
+    sigma = cv2.sqrt(cv2.min(np.maximum(image, 0.0), 255.0) * np.float32(0.7 / 128.0) + np.float32(0.3))
+    noise = np.empty_like(image)
+    cv2.setRNGSeed(int(rng.integers(1 << 31)))
+    cv2.randn(noise, 0.0, look.sigma)
+    out = np.rint(np.clip(image + sigma * noise, 0, 255)).astype(np.uint8)
+    if look.jpeg_quality is not None:
+        ok, data = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, look.jpeg_quality])
         out = cv2.imdecode(data, cv2.IMREAD_COLOR)
     return out

@@ -40,7 +40,7 @@ from agf.vision.measure import measure_pallet
 from agf.viz import fork_path_side_view, pick_plots
 from drivers.cia402_axis import axes_from_config
 from drivers.sim.collision import clearance, pallet_parts, tine_surface_points
-from drivers.sim.render import render
+from drivers.sim.fast_render import render_fast
 
 # Axes at the start of a pick (m, rad): reach 0.15 m leaves the 1.3 m stroke room for a pallet 400 mm
 # ahead plus 850 mm of stand-off and insertion (at 0.3 m, six of 200 random picks were out of reach).
@@ -62,7 +62,7 @@ class RenderedCamera(FrameSource):
             self.world.frames_lost -= 1
             return None
         scene = self.world.scene_now()
-        image, _ = render(scene, self.world.camera)
+        image, _ = render_fast(scene, self.world.camera)
         return image
 
 
@@ -211,7 +211,7 @@ def run_command(config: Config, *, plots: str | None = None, progress: bool = Tr
 
 def random_scene(rng: np.random.Generator, base: Scene) -> Scene:
     """A random pick: pitch -5..5 deg, fork heights of the paper and more, loaded or not, yaw +-3 deg,
-    stand-off 150..400 mm."""
+    stand-off 150..400 mm, and a random look (textures, lights, sensor) drawn from its seed."""
     pose = Transform.from_euler(
         rng.uniform(0.15, 0.4),
         rng.uniform(-0.03, 0.03),
@@ -233,6 +233,7 @@ def random_scene(rng: np.random.Generator, base: Scene) -> Scene:
         load=load,
         environment=environment,
         seed=int(rng.integers(0, 2**31)),
+        look="random",
     )
 
 
