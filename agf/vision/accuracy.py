@@ -12,7 +12,11 @@ import statistics
 from dataclasses import dataclass, field
 from typing import Any
 
+from agf.camera import CameraModel
+from agf.config import ForkGeometry, SearchVolume
+from agf.errors import MeasurementError
 from agf.geometry import Transform
+from agf.pallets import PalletType
 
 BOUNDS = {"x_mm": 10.0, "z_mm": 5.0, "pitch_deg": 0.1}
 KEYS = ("x_mm", "y_mm", "z_mm", "pitch_deg", "yaw_deg")
@@ -39,6 +43,29 @@ class AccuracyTally:
     wrong: list[str] = field(default_factory=list)
     measured: int = 0
     rows: list[tuple[str, dict[str, float] | None, str]] = field(default_factory=list)  # name, errors, verdict
+
+    def measure(
+        self,
+        name: str,
+        image: Any,
+        camera: CameraModel,
+        camera_in_fork: Transform,
+        pallet: PalletType,
+        volume: SearchVolume,
+        forks: ForkGeometry,
+        truth: Transform,
+        truth_loaded: bool,
+    ) -> None:
+        """Measure one frame without a prior and count it, measured or refused."""
+        from agf.vision.measure import measure_pallet
+
+        try:
+            detail = measure_pallet(image, camera, camera_in_fork, pallet, volume, forks=forks)
+        except MeasurementError as exc:
+            self.add_refused(name, str(exc))
+            return
+        m = detail.measurement
+        self.add_measured(name, m.pallet_in_fork, truth, m.loaded == truth_loaded, m.timing_ms)
 
     def add_measured(
         self, name: str, estimate: Transform, truth: Transform, right_hypothesis: bool, timing_ms: dict[str, float]

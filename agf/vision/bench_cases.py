@@ -12,7 +12,6 @@ import yaml
 
 from agf.bench import bench_case, time_calls, timing_summary
 from agf.camera import load_camera
-from agf.errors import MeasurementError
 from agf.geometry import transform_from_dict
 from agf.paths import DEFAULT_CONFIG, repo_path
 from agf.vision.accuracy import AccuracyTally
@@ -63,7 +62,6 @@ def measure_truthed_frames(folder: Path) -> AccuracyTally:
     (the layout of the foreign renders' README) with the default configuration's search volume."""
     from agf.config import load_config
     from agf.pallets import load_pallets
-    from agf.vision.measure import measure_pallet
 
     if not (folder / "scenes").is_dir():
         raise FileNotFoundError(f"{folder}: no scenes/ folder of truthed frames here")
@@ -77,19 +75,16 @@ def measure_truthed_frames(folder: Path) -> AccuracyTally:
         image = cv2.imread(str(folder / "images" / f"{name}.png"), cv2.IMREAD_GRAYSCALE)
         if image is None:
             raise FileNotFoundError(f"{folder / 'images' / name}.png: not an image OpenCV can read")
-        try:
-            detail = measure_pallet(
-                image,
-                load_camera(folder / scene["camera"]),
-                transform_from_dict(scene["camera_in_fork"], where=f"{scene_path}: camera_in_fork"),
-                catalogue[scene["pallet"]["type"]],
-                config.vision.search,
-                forks=config.forks,
-            )
-        except MeasurementError as exc:
-            tally.add_refused(name, str(exc))
-            continue
-        m = detail.measurement
         truth_pose = transform_from_dict(truth["pallet_in_fork"], where=f"{name}.truth.json: pallet_in_fork")
-        tally.add_measured(name, m.pallet_in_fork, truth_pose, m.loaded == truth["loaded"], m.timing_ms)
+        tally.measure(
+            name,
+            image,
+            load_camera(folder / scene["camera"]),
+            transform_from_dict(scene["camera_in_fork"], where=f"{scene_path}: camera_in_fork"),
+            catalogue[scene["pallet"]["type"]],
+            config.vision.search,
+            config.forks,
+            truth_pose,
+            truth["loaded"],
+        )
     return tally
