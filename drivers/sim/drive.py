@@ -35,6 +35,7 @@ import struct
 import sys
 import threading
 import time
+from collections.abc import Sequence
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -44,7 +45,7 @@ import canopen
 
 from agf.errors import ConfigError
 from drivers.can_bus import open_bus
-from drivers.cia402_axis import DEFAULT_EDS, load_object_dictionary
+from drivers.cia402_axis import DEFAULT_EDS, DriveSettings, NetworkSettings, load_object_dictionary
 
 logger = logging.getLogger(__name__)
 
@@ -448,6 +449,15 @@ class SimDrive:
             return counts
         low, high = self._decode(0x607D, 1), self._decode(0x607D, 2)
         return max(low, min(high, counts)) if low < high else counts
+
+
+def start_simulated_drives(
+    drives: Sequence[DriveSettings], bus_mapping: Any, settings: NetworkSettings, where: str
+) -> list[SimDrive]:
+    """A simulated drive per configured axis, in this process, each on its own connection to the bus
+    (a :data:`drivers.cia402_axis.DriveStarter`: the default configuration's ``plugins.drives``)."""
+    return [SimDrive.open(d.node_id, open_bus(bus_mapping, f"{where} bus"), eds=d.eds, cycle=settings.cycle)
+            for d in drives]
 
 
 def _command(word: int) -> str:

@@ -37,6 +37,7 @@ from agf.motion import plan_move
 from agf.pallets import load_pallets
 from agf.paths import repo_path
 from agf.planner import PickPlanner, pick_settings_from_mapping
+from agf.plugins import load_object
 from agf.recorder import McapRecorder, MeasurementSetup, Recorder, open_pick_log
 from agf.scene import Environment, Load, PalletPlacement, Scene, load_scene
 from agf.vision.measure import measure_pallet
@@ -81,7 +82,8 @@ class SimulatedWorld:
         self.mast = MastGeometry()
         self.pallet = load_pallets(config.vision.pallets)[scene.pallet.type]
         self.network, self.axes = axes_from_config(
-            config.sections["drives"], config.sections["bus"], f"{config.source}:", base_dir=config.source.parent
+            config.sections["drives"], config.sections["bus"], f"{config.source}:", base_dir=config.source.parent,
+            start_drives=drive_starter(config),
         )
         self.frames_lost = 0
         self.min_clearance = math.inf
@@ -172,6 +174,12 @@ def pick_log(config: Config, scene: Scene, name: str) -> Iterator[McapRecorder]:
         CanTap(config.sections["bus"], f"{config.source}: bus", log),
     ):
         yield log
+
+
+def drive_starter(config: Config) -> Any:
+    """What ``plugins.drives`` names to start the drives with, or None (a truck's drives run on their own)."""
+    spec = config.plugins.get("drives")
+    return None if spec is None else load_object(spec, key=f"{config.source}: plugins.drives")
 
 
 def pick_summary(result: PickResult, world: SimulatedWorld) -> dict[str, Any]:

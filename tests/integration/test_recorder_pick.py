@@ -15,9 +15,10 @@ import pytest
 from mcap.writer import Writer
 
 from agf.cli import main
-from agf.paths import DEFAULT_CONFIG, repo_path
+from agf.paths import repo_path
 from agf.recorder import SCHEMAS, TOPICS, PickLog, read_log
 from agf.replay import replay_log
+from tests.config_copy import config_copy
 
 pytestmark = pytest.mark.slow
 
@@ -26,11 +27,7 @@ pytestmark = pytest.mark.slow
 def killed_pick(tmp_path_factory) -> tuple[PickLog, float]:
     """`agf run` killed 1.5 s into the align motion; its log and when it was killed (s since the epoch)."""
     folder = tmp_path_factory.mktemp("pick")
-    text = DEFAULT_CONFIG.read_text()
-    for name in ("cameras/", "calibration.yaml", "pallets.yaml", "eds/"):
-        text = text.replace(f" {name}", f" {DEFAULT_CONFIG.parent}/{name}")
-    config = folder / "agf.yaml"
-    config.write_text(text + "\nrecorder: {folder: logs, max_total_mb: 500, flush_period_ms: 200}\n")
+    config = config_copy(folder, recorder={"folder": "logs", "max_total_mb": 500, "flush_period_ms": 200})
     env = {**os.environ, "PYTHONPATH": str(repo_path("."))}
     proc = subprocess.Popen([sys.executable, "-m", "agf.cli", "run", "--config", str(config)], cwd=repo_path("."),
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)

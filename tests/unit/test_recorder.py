@@ -35,6 +35,7 @@ from agf.recorder import (
     open_pick_log,
     read_log,
 )
+from tests.config_copy import config_copy
 
 CONFIG = load_config(DEFAULT_CONFIG)
 SETUP = MeasurementSetup.from_config(CONFIG)
@@ -180,18 +181,8 @@ def test_retention_never_deletes_the_log_being_written(tmp_path: Path) -> None:
     assert logs[1].exists() and logs[2].exists()
 
 
-def config_with(tmp_path: Path, recorder: str):
-    """The default config in ``tmp_path`` (its files named absolutely) with this ``recorder`` section."""
-    text = DEFAULT_CONFIG.read_text()
-    for name in ("cameras/", "calibration.yaml", "pallets.yaml", "eds/"):
-        text = text.replace(f" {name}", f" {DEFAULT_CONFIG.parent}/{name}")
-    config_file = tmp_path / "agf.yaml"
-    config_file.write_text(text + f"\nrecorder: {recorder}\n")
-    return load_config(config_file)
-
-
 def test_a_new_pick_log_makes_room_in_the_configured_folder(tmp_path: Path) -> None:
-    config = config_with(tmp_path, "{folder: logs, max_total_mb: 0.0005, flush_period_ms: 100}")
+    config = load_config(config_copy(tmp_path, recorder={"folder": "logs", "max_total_mb": 0.0005}))
     (tmp_path / "logs").mkdir()
     old = make_logs(tmp_path / "logs", [800, 800])
     with open_pick_log(config, "run", MeasurementSetup.from_config(config)) as log:
@@ -201,10 +192,10 @@ def test_a_new_pick_log_makes_room_in_the_configured_folder(tmp_path: Path) -> N
 
 
 @pytest.mark.parametrize("recorder, message", [
-    ("{flush_period_ms: 5000}", "recorder: flush_period_ms must be within 10..1000 ms"),
-    ("{max_total_mb: 0}", "recorder: max_total_mb: must be positive"),
-    ("{folder_mm: 3}", r"recorder: unknown key\(s\) \['folder_mm'\]"),
+    ({"flush_period_ms": 5000}, "recorder: flush_period_ms must be within 10..1000 ms"),
+    ({"max_total_mb": 0}, "recorder: max_total_mb: must be positive"),
+    ({"folder_mm": 3}, r"recorder: unknown key\(s\) \['folder_mm'\]"),
 ])
-def test_bad_recorder_settings_are_named(tmp_path: Path, recorder: str, message: str) -> None:
+def test_bad_recorder_settings_are_named(tmp_path: Path, recorder: dict, message: str) -> None:
     with pytest.raises(ConfigError, match=message):
-        config_with(tmp_path, recorder)
+        load_config(config_copy(tmp_path, recorder=recorder))

@@ -1,0 +1,23 @@
+"""A copy of the default configuration in a test's folder, with some sections changed."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from agf.paths import DEFAULT_CONFIG
+
+
+def config_copy(folder: Path, **sections: Any) -> Path:
+    """``folder/agf.yaml``: the default config with its files named absolutely and ``sections`` replaced."""
+    data = yaml.safe_load(DEFAULT_CONFIG.read_text())
+    for key in ("camera", "calibration", "pallets"):
+        data["vision"][key] = str(DEFAULT_CONFIG.parent / data["vision"][key])
+    for axis in data["drives"]["axes"].values():
+        axis["eds"] = str(DEFAULT_CONFIG.parent / axis["eds"])
+    data.update(sections)
+    path = folder / "agf.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
