@@ -178,6 +178,9 @@ def _summary(result: dict[str, Any], indent: int = 0) -> str:
         if isinstance(value, dict):
             lines.append(" " * indent + f"{key}:")
             lines.append(_summary(value, indent + 2))
+        elif isinstance(value, list) and value and all(isinstance(item, dict) for item in value):
+            lines.append(" " * indent + f"{key}:")
+            lines.extend(" " * (indent + 2) + "-\n" + _summary(item, indent + 4) for item in value)
         elif isinstance(value, float):
             lines.append(" " * indent + f"{key}: {value:.4g}")
         else:

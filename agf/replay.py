@@ -111,8 +111,8 @@ def replay_log(log: PickLog, plots: Path | None = None) -> dict[str, Any]:
     """
     frames = {m.sequence: m for m in log.on("/camera/image")}
     logged = log.on("/measurement")
-    if not frames:
-        raise InputError(f"{log.path}: the log holds no frame (the pick ended before acquiring one)")
+    if not logged:
+        raise InputError(f"{log.path}: the log holds no measurement to replay (the pick ended before measuring)")
     with tempfile.TemporaryDirectory() as folder:
         measure = _Measurer(setup_from_log(log, Path(folder)))
     rows, details = [], []

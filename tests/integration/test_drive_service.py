@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import ast
 import os
 import signal
 import subprocess
@@ -76,3 +77,11 @@ def test_quit_on_standard_input_stops_the_drive_and_says_so() -> None:
     out, _ = proc.communicate("status\nquit\n", timeout=10)
     assert proc.returncode == 0
     assert "SWITCH ON DISABLED" in out and "stopped node 42" in out and "quit on standard input" in out
+
+
+def test_the_real_driver_does_not_know_its_simulated_twin() -> None:
+    """Which drives start is the configuration's choice (plugins.drives), not the CiA 402 driver's."""
+    tree = ast.parse(repo_path("drivers/cia402_axis.py").read_text())
+    imported = {node.module for node in ast.walk(tree) if isinstance(node, ast.ImportFrom)}
+    imported |= {alias.name for node in ast.walk(tree) if isinstance(node, ast.Import) for alias in node.names}
+    assert not any(name.startswith("drivers.sim") for name in imported), imported
