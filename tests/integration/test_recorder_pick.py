@@ -23,29 +23,42 @@ from tests.config_copy import config_copy
 pytestmark = pytest.mark.slow
 
 
-@pytest.fixture(scope="module")
-def killed_pick(tmp_path_factory) -> tuple[PickLog, float]:
-    """`agf run` killed 1.5 s into the align motion; its log and when it was killed (s since the epoch)."""
-    folder = tmp_path_factory.mktemp("pick")
-    config = config_copy(folder, recorder={"folder": "logs", "max_total_mb": 500, "flush_period_ms": 200})
+def run_until_moving(config: Path) -> tuple[subprocess.Popen, list[str]]:
+    """`agf run` in its own process, returned once the forks start aligning (or once it has ended)."""
     env = {**os.environ, "PYTHONPATH": str(repo_path("."))}
     proc = subprocess.Popen([sys.executable, "-m", "agf.cli", "run", "--config", str(config)], cwd=repo_path("."),
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     lines = []
-    try:
-        for line in proc.stdout:
-            lines.append(line)
-            if "aligning" in line:
-                break
-        else:
-            pytest.fail("agf run ended before moving the forks:\n" + "".join(lines))
-        time.sleep(1.5)
-    finally:
-        killed_at = time.time()
-        proc.send_signal(signal.SIGKILL)
-        proc.wait()
-    (path,) = (folder / "logs").glob("*_run.mcap")
-    return read_log(path), killed_at
+    for line in proc.stdout:
+        lines.append(line)
+        if "agf run: aligning" in line:
+            break
+    return proc, lines
+
+
+@pytest.fixture(scope="module")
+def killed_pick(tmp_path_factory) -> tuple[PickLog, float]:
+    """`agf run` killed 1.5 s into the align motion; its log and when it was killed (s since the epoch).
+
+    A pick that faults before moving (today the simulated drives' heartbeats starve when other processes
+    load both cores) is run again, at most three times: this test is about the log of a moving pick.
+    """
+    for attempt in range(3):
+        folder = tmp_path_factory.mktemp(f"pick{attempt}")
+        config = config_copy(folder, recorder={"folder": "logs", "max_total_mb": 500, "flush_period_ms": 200})
+        proc, lines = run_until_moving(config)
+        try:
+            moving = bool(lines) and "agf run: aligning" in lines[-1]
+            if moving:
+                time.sleep(1.5)
+        finally:
+            killed_at = time.time()
+            proc.send_signal(signal.SIGKILL)
+            proc.wait()
+        if moving:
+            (path,) = (folder / "logs").glob("*_run.mcap")
+            return read_log(path), killed_at
+    pytest.fail("agf run ended before moving the forks three times; the last time:\n" + "".join(lines))
 
 
 def test_a_pick_killed_mid_motion_leaves_its_log_readable_up_to_the_kill(killed_pick) -> None:
