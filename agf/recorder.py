@@ -43,7 +43,7 @@ from mcap.writer import CompressionType, Writer
 
 from agf.axis import AxisFeedback
 from agf.config import Config, ForkGeometry, SearchVolume, load_calibration
-from agf.errors import InputError
+from agf.errors import ConfigError, InputError
 from agf.frames import Frame
 from agf.geometry import Transform, quaternion_from_matrix
 from agf.measurement import PalletMeasurement
@@ -404,22 +404,25 @@ def _sync(file: Any) -> None:
 # the log folder
 
 
-def log_folder(config: Config) -> Path:
-    """The configured log folder (``recorder.folder``, relative to the config file), created if needed."""
-    folder = (config.root / config.recorder.folder).resolve()
-    folder.mkdir(parents=True, exist_ok=True)
-    return folder
-
-
 def open_pick_log(config: Config, name: str, setup: MeasurementSetup, **options: Any) -> McapRecorder:
-    """A new log ``<UTC time>_<name>.mcap`` in the configured folder, after retention made room.
+    """A new log ``<UTC time>_<name>.mcap`` in the configured folder (``recorder.folder``, relative to
+    the config file, created if needed), after retention made room.
 
     ``options`` go to :class:`McapRecorder` (``context``, ``fork_in_truck``).
+
+    Raises
+    ------
+    ConfigError
+        The folder cannot be created or written.
     """
-    folder = log_folder(config)
+    folder = (config.root / config.recorder.folder).resolve()
     stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S.%fZ")
-    recorder = McapRecorder(folder / f"{stamp}_{name}.mcap", setup, flush_period=config.recorder.flush_period,
-                            **options)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        recorder = McapRecorder(folder / f"{stamp}_{name}.mcap", setup, flush_period=config.recorder.flush_period,
+                                **options)
+    except OSError as exc:
+        raise ConfigError(f"{config.source}: recorder.folder: cannot write a log in {folder} ({exc})") from exc
     enforce_retention(folder, config.recorder.max_total_mb * 1e6, keep=recorder.path)
     return recorder
 

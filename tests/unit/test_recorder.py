@@ -191,6 +191,13 @@ def test_a_new_pick_log_makes_room_in_the_configured_folder(tmp_path: Path) -> N
     assert read_log(log.path).complete
 
 
+def test_a_log_folder_that_cannot_be_written_is_named(tmp_path: Path) -> None:
+    (tmp_path / "file").write_text("a file where the folder should be")
+    config = load_config(config_copy(tmp_path, recorder={"folder": "file/logs"}))
+    with pytest.raises(ConfigError, match="recorder.folder: cannot write a log in .*file/logs"):
+        open_pick_log(config, "run", MeasurementSetup.from_config(config))
+
+
 @pytest.mark.parametrize("recorder, message", [
     ({"flush_period_ms": 5000}, "recorder: flush_period_ms must be within 10..1000 ms"),
     ({"max_total_mb": 0}, "recorder: max_total_mb: must be positive"),
