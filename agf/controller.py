@@ -9,6 +9,9 @@ and an operator stop only set a flag that the loop checks every control cycle. A
 refused measurement or plan, timeout or operator stop ends in quick stop of every axis and the FAULT
 state with the reason; only an explicit :meth:`PickController.reset` leaves it (ISO 3691-4: no
 automatic restart after an emergency stop).
+
+Every transition (with its reason), frame, measurement or refusal, plan and control cycle (setpoints
+sent, feedback read) is reported to a :class:`agf.recorder.Recorder`: the pick's log.
 """
 
 from __future__ import annotations

@@ -94,7 +94,11 @@ class SimulatedWorld:
         self.outlines: list[np.ndarray] = []  # per cycle, the left tine's side outline in frame P
         self.clearances: list[float] = []  # per cycle (m)
         self._parts = pallet_parts(self.pallet)
-        self._move_to(START)
+        try:
+            self._move_to(START)
+        except Exception:  # a world that never started must not leave its drives on the bus for the next one
+            self.network.close()
+            raise
         self.pallet_in_truck = fork_in_truck_from_axes(self.positions(), self.mast) @ scene.pallet.in_fork
 
     def __enter__(self) -> SimulatedWorld:
