@@ -138,8 +138,13 @@ def replay_log(log: PickLog, plots: Path | None = None) -> dict[str, Any]:
 
 
 def _measure(measure: _Measurer, frame: LoggedMessage) -> tuple[MeasureDetail | None, str | None]:
+    image = decode_frame(frame)
+    camera = measure.camera
+    if image.shape[:2] != (camera.height, camera.width):
+        raise InputError(f"frame {frame.sequence} is {image.shape[1]} x {image.shape[0]}, the logged camera model's "
+                         f"frames are {camera.width} x {camera.height}")
     try:
-        return measure(decode_frame(frame)), None
+        return measure(image), None
     except MeasurementError as exc:
         return None, str(exc)
 
