@@ -358,8 +358,7 @@ class McapRecorder(Recorder):
     def close(self) -> None:
         """Write the footer (summary and indexes), sync and release the file; idempotent."""
         self._stop.set()
-        if self._flusher is not threading.current_thread():
-            self._flusher.join(timeout=5.0)
+        self._flusher.join()
         with self._lock:
             if self._closed:
                 return
@@ -389,10 +388,9 @@ class McapRecorder(Recorder):
     def _flush_every(self, period: float) -> None:
         while not self._stop.wait(period):
             with self._lock:
-                if self._closed:
-                    return
                 self._writer.flush()  # closes the chunk in progress and writes it
-                _sync(self._file)
+            # outside the lock: a slow disk must not hold up the control cycle; close() waits for us
+            _sync(self._file)
 
 
 def _sync(file: Any) -> None:
