@@ -1,4 +1,4 @@
-"""The ``agf`` command: ``run | measure | calibrate | render | simulate | bench``.
+"""The ``agf`` command: ``run | measure | calibrate | render | simulate | replay | bench``.
 
 Every sub-command takes ``--config`` and ``--json``. With ``--json`` it prints exactly one JSON
 object on stdout; on failure that object is ``{"ok": false, "error": "..."}``. Exit codes:
@@ -96,6 +96,12 @@ def _cmd_run(args: argparse.Namespace, config: Config) -> dict[str, Any]:
     return _plugin(config, "run")(config, plots=args.plots, progress=not args.json)
 
 
+def _cmd_replay(args: argparse.Namespace, config: Config) -> dict[str, Any]:
+    from agf.replay import replay_command
+
+    return replay_command(config, _existing_file(args.log), plots=args.plots)
+
+
 def _cmd_bench(args: argparse.Namespace, config: Config) -> dict[str, Any]:
     from agf.bench import run_bench
 
@@ -162,6 +168,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--jobs", type=int, metavar="J", help="picks run side by side (default: one per core)")
     p.set_defaults(handler=_cmd_simulate)
 
+    p = sub.add_parser("replay", parents=[common], help="re-run the measurement on a pick's logged frames")
+    p.add_argument("log", help="the pick's MCAP log (see docs/recorder.md)")
+    p.add_argument("--plots", metavar="DIR", help="draw the pick from the log alone (PNG) here")
+    p.set_defaults(handler=_cmd_replay)
+
     p = sub.add_parser("bench", parents=[common], help="speed and accuracy figures")
     p.add_argument("--quick", action="store_true", help="reduced set, fast enough for CI")
     p.add_argument("--only", metavar="PREFIX", help="run only the cases whose name starts with PREFIX")
@@ -175,6 +186,9 @@ def _summary(result: dict[str, Any], indent: int = 0) -> str:
         if isinstance(value, dict):
             lines.append(" " * indent + f"{key}:")
             lines.append(_summary(value, indent + 2))
+        elif isinstance(value, list) and value and all(isinstance(item, dict) for item in value):
+            lines.append(" " * indent + f"{key}:")
+            lines.extend(" " * (indent + 2) + "-\n" + _summary(item, indent + 4) for item in value)
         elif isinstance(value, float):
             lines.append(" " * indent + f"{key}: {value:.4g}")
         else:

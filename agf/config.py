@@ -265,6 +265,22 @@ class BenchConfig:
 
 
 @dataclass(frozen=True)
+class RecorderConfig:
+    """Where every pick's MCAP log goes (``folder``, relative to the config file), how much of it is
+    kept (``max_total_mb``, oldest logs deleted first) and how often it reaches the disk."""
+
+    folder: str = "../logs"
+    max_total_mb: float = 2000.0
+    flush_period: float = unit("ms", 0.5)
+
+    def __post_init__(self) -> None:
+        require_positive("max_total_mb", self.max_total_mb)
+        if not 0.01 <= self.flush_period <= 1.0:
+            raise ValueError(f"flush_period_ms must be within 10..1000 ms (at least once per second), "
+                             f"got {self.flush_period * 1e3:g} ms")
+
+
+@dataclass(frozen=True)
 class Config:
     """The whole configuration, SI units throughout."""
 
@@ -274,6 +290,7 @@ class Config:
     plugins: dict[str, str] = field(default_factory=dict)
     bench: BenchConfig = field(default_factory=BenchConfig)
     sections: dict[str, Any] = field(default_factory=dict)
+    recorder: RecorderConfig = field(default_factory=RecorderConfig)
 
     @property
     def root(self) -> Path:
@@ -287,6 +304,7 @@ class _ConfigFile:
     forks: ForkGeometry = field(default_factory=ForkGeometry)
     plugins: dict[str, str] = field(default_factory=dict)
     bench: BenchConfig = field(default_factory=BenchConfig)
+    recorder: RecorderConfig = field(default_factory=RecorderConfig)
     # Sections whose typed parsers live with the code that uses them (drives, motion, insertion,
     # controller, simulation); each is validated by that code's own ``from_mapping``.
     drives: Any = None
@@ -323,6 +341,7 @@ def load_config(path: str | Path) -> Config:
         plugins=parsed.plugins,
         bench=parsed.bench,
         sections=sections,
+        recorder=parsed.recorder,
     )
 
 

@@ -9,6 +9,9 @@ and an operator stop only set a flag that the loop checks every control cycle. A
 refused measurement or plan, timeout or operator stop ends in quick stop of every axis and the FAULT
 state with the reason; only an explicit :meth:`PickController.reset` leaves it (ISO 3691-4: no
 automatic restart after an emergency stop).
+
+Every transition (with its reason), frame, measurement or refusal, plan and control cycle (setpoints
+sent, feedback read) is reported to a :class:`agf.recorder.Recorder`: the pick's log.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ from agf.axis import Axis, AxisState
 from agf.errors import AgfError, DriveFault
 from agf.frames import Frame, FrameSource
 from agf.measurement import PalletMeasurement
+from agf.recorder import Recorder
 
 
 class PickMachine(StateMachine):
@@ -137,9 +141,11 @@ class PickController:
         config: ControllerConfig = ControllerConfig(),
         on_cycle: Callable[[Mapping[str, float]], None] | None = None,
         progress: Callable[[str], None] | None = None,
+        recorder: Recorder | None = None,
     ) -> None:
         self.axes, self.frames, self.measure, self.planner = axes, frames, measure, planner
         self.config, self.on_cycle = config, on_cycle
+        self.recorder = recorder or Recorder()  # the base records nothing
         self.progress = progress or (lambda message: None)
         self.machine = PickMachine()
         self._alarm: str | None = None
@@ -169,7 +175,7 @@ class PickController:
     def run(self) -> PickResult:
         """One pick from IDLE to DONE or FAULT."""
         result = PickResult(False, "idle", None, [], None, {}, [])
-        self.machine.send("start")
+        self._send("start")
         steps: dict[str, Callable[[PickResult], str]] = {
             "connecting": self._connect,
             "planning": self._plan,
@@ -185,11 +191,11 @@ class PickController:
             try:
                 self._check_alarm()
                 if state == "acquiring":
-                    frame = self.frames.read(self.config.timeouts["acquiring"])
+                    frame = self._read_frame()
                     event = "acquired"
                 elif state == "measuring":
                     prior = result.measurements[-1] if result.measurements else None
-                    result.measurements.append(self._timed(self.measure, state, frame, prior))
+                    result.measurements.append(self._measure(state, frame, prior))
                     event = "measured"
                 else:
                     event = steps[state](result)
@@ -200,17 +206,35 @@ class PickController:
             except (AgfError, TimeoutError) as exc:
                 self._safe_stop()
                 result.reason = f"{state}: {exc}"
-                self.machine.send("abort")
+                self._send("abort", result.reason)
                 break
             finally:
                 result.durations[state] = result.durations.get(state, 0.0) + time.monotonic() - start
-            self.machine.send(event)
+            self._send(event)
         result.state = self._state()
         result.ok = result.state == "done"
         return result
 
     def _state(self) -> str:
         return next(iter(self.machine.configuration)).id
+
+    def _send(self, event: str, reason: str | None = None) -> None:
+        self.machine.send(event)
+        self.recorder.state(self._state(), event, reason)
+
+    def _read_frame(self) -> Frame:
+        frame = self.frames.read(self.config.timeouts["acquiring"])
+        self.recorder.frame(frame)
+        return frame
+
+    def _measure(self, state: str, frame: Frame, prior: PalletMeasurement | None) -> PalletMeasurement:
+        try:
+            measurement = self._timed(self.measure, state, frame, prior)
+        except (AgfError, TimeoutError) as exc:
+            self.recorder.measurement(state, frame, None, str(exc))
+            raise
+        self.recorder.measurement(state, frame, measurement)
+        return measurement
 
     def _timed(self, fn: Callable[..., Any], state: str, *args: Any) -> Any:
         start = time.monotonic()
@@ -227,6 +251,7 @@ class PickController:
     def _plan(self, result: PickResult) -> str:
         plan = self.planner.plan(result.measurements[-1], self._positions())
         result.plan = plan
+        self.recorder.plan(plan)
         if not plan.safe:
             raise AgfError(f"insertion refused: {plan.reason}")
         return "planned"
@@ -236,10 +261,12 @@ class PickController:
         return "aligned"
 
     def _verify(self, result: PickResult) -> str:
-        frame = self.frames.read(self.config.timeouts["acquiring"])
-        measurement = self._timed(self.measure, "verifying", frame, result.measurements[-1])
+        frame = self._read_frame()
+        measurement = self._measure("verifying", frame, result.measurements[-1])
         result.measurements.append(measurement)
         problem = self.planner.verify(measurement, result.plan)
+        if problem is not None:
+            self.recorder.note("warning", f"verifying: {problem}; planning again")
         return "verified" if problem is None else "replan"
 
     def _insert(self, result: PickResult) -> str:
@@ -263,7 +290,9 @@ class PickController:
             setpoints = motion.at(min(now - t0, motion.duration))
             for name, value in setpoints.items():
                 self.axes[name].send_setpoint(value)
-            positions = self._positions()
+            feedback = {name: axis.feedback() for name, axis in self.axes.items()}
+            self.recorder.cycle(state, setpoints, feedback)
+            positions = {name: f.position for name, f in feedback.items()}
             result.log.append({"t": now, "state": state, "setpoint": dict(setpoints), "actual": positions})
             if self.on_cycle is not None:
                 self.on_cycle(positions)

@@ -202,3 +202,26 @@ def transform_from_dict(data: Mapping[str, object], *, where: str = "pose") -> T
         pitch=np.radians(values["pitch_deg"]),
         yaw=np.radians(values["yaw_deg"]),
     )
+
+
+def quaternion_from_matrix(R: ArrayLike) -> NDArray[np.float64]:
+    """Unit quaternion ``(x, y, z, w)`` of a rotation matrix (3, 3), ``w >= 0`` (Foxglove's order).
+
+    Shepperd's method: start from the largest of the four squared components, so that no division
+    by a small number loses precision near 180 degrees.
+    """
+    R = check_rotation(R)
+    trace = np.trace(R)
+    squares = np.array([1 + 2 * R[0, 0] - trace, 1 + 2 * R[1, 1] - trace, 1 + 2 * R[2, 2] - trace, 1 + trace])
+    k = int(np.argmax(squares))
+    q = np.empty(4)
+    q[k] = np.sqrt(squares[k]) / 2
+    off = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])  # 4w * (x, y, z)
+    sym = np.array([R[1, 0] + R[0, 1], R[0, 2] + R[2, 0], R[2, 1] + R[1, 2]])  # 4 * (xy, xz, yz)
+    if k == 3:
+        q[:3] = off / (4 * q[3])
+    else:
+        q[3] = off[k] / (4 * q[k])
+        for i in {0, 1, 2} - {k}:
+            q[i] = sym[i + k - 1] / (4 * q[k])  # the pair (i, k) sits at index i + k - 1 of sym
+    return q if q[3] >= 0 else -q

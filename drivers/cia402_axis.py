@@ -26,7 +26,7 @@ import math
 import re
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -214,7 +214,6 @@ class NetworkSettings:
     cycle: float = unit("ms", 0.010)
     heartbeat: float = unit("ms", 0.100)
     master_node_id: int = 127
-    simulated: bool = False
 
     def __post_init__(self) -> None:
         if not 0.001 <= self.cycle <= 0.1:
@@ -269,7 +268,7 @@ class Cia402Network:
         self.network.NOTIFIER_CYCLE = 0.1  # how long closing waits for the receive thread
         self.network.connect()
         self.axes: dict[str, Cia402Axis] = {}
-        self.sim_drives: list[Any] = []  # simulated drives this network started (drives.simulated)
+        self.sim_drives: list[Any] = []  # drives started for it by a DriveStarter (simulated twins)
         self._heartbeat_task: Any = None
         self._sync_running = False
         self._stop = threading.Event()
@@ -605,13 +604,24 @@ def _type_range(entry: canopen.objectdictionary.ODVariable) -> tuple[int, int]:
 # factory
 
 
-def axes_from_config(
-    drives_mapping: Any, bus_mapping: Any, where: str, base_dir: Path | None = None, timeout: float = 5.0
-) -> tuple[Cia402Network, dict[str, Axis]]:
-    """Open the bus, start the drives of the ``drives`` section and return the network and its axes.
+#: Starts drives for a network before the master configures them (the config's ``plugins.drives``):
+#: ``(drives, bus mapping, network settings, where) -> started drives``, each with ``close()``.
+DriveStarter = Callable[[Sequence[DriveSettings], Any, NetworkSettings, str], list[Any]]
 
-    With ``drives.simulated: true`` a simulated drive (``drivers.sim.drive``) is started in this
-    process for every axis, on its own connection to the same bus, before the master configures it.
+
+def axes_from_config(
+    drives_mapping: Any,
+    bus_mapping: Any,
+    where: str,
+    base_dir: Path | None = None,
+    timeout: float = 5.0,
+    start_drives: DriveStarter | None = None,
+) -> tuple[Cia402Network, dict[str, Axis]]:
+    """Open the bus, configure the drives of the ``drives`` section and return the network and its axes.
+
+    ``start_drives`` (the configuration's ``plugins.drives``; the default config names
+    ``drivers.sim.drive:start_simulated_drives``) starts the drives first; a truck's drives are
+    powered on their own and need none. The network closes what it started.
     """
     if not isinstance(drives_mapping, Mapping):
         raise ConfigError(f"{where} drives: expected a mapping, got {type(drives_mapping).__name__}")
@@ -625,7 +635,7 @@ def axes_from_config(
     ids = [d.node_id for d in drives] + [settings.master_node_id]
     if len(set(ids)) != len(ids):
         raise ConfigError(f"{where} drives: node ids must be unique (master included), got {ids}")
-    sim_drives = _start_simulated(drives, bus_mapping, settings, where) if settings.simulated else []
+    sim_drives = start_drives(drives, bus_mapping, settings, where) if start_drives is not None else []
     net = Cia402Network(open_bus(bus_mapping, f"{where} bus"), settings)
     net.sim_drives = sim_drives
     try:
@@ -636,10 +646,3 @@ def axes_from_config(
         net.close()
         raise
     return net, dict(net.axes)
-
-
-def _start_simulated(drives: list[DriveSettings], bus_mapping: Any, settings: NetworkSettings, where: str) -> list:
-    from drivers.sim.drive import SimDrive  # only the simulated world needs it
-
-    return [SimDrive.open(d.node_id, open_bus(bus_mapping, f"{where} bus"), eds=d.eds, cycle=settings.cycle)
-            for d in drives]

@@ -19,8 +19,10 @@ every SYNC it receives, so a test that sends SYNCs gets exactly the same motion 
 SYNCs stop during a stop ramp (the master is gone), the supervisor thread keeps stepping the ramp on
 its own clock so the axis still comes to rest.
 
-Run as a process: ``python -m drivers.sim.drive --node-id N --interface udp_multicast``; commands on
-standard input (``fault [CODE]``, ``load PERCENT``, ``limits LOW HIGH``, ``silent``, ``quit``).
+Run as a process: ``python -m drivers.sim.drive --node-id N --interface udp_multicast``. It serves
+until SIGINT, SIGTERM or ``quit`` on standard input, and says which ended it; commands on standard
+input are optional (``fault [CODE]``, ``load PERCENT``, ``limits LOW HIGH``, ``silent``, ``status``,
+``quit``): started with ``< /dev/null`` or by a service manager it keeps serving.
 """
 
 from __future__ import annotations
@@ -28,10 +30,13 @@ from __future__ import annotations
 import argparse
 import logging
 import math
+import signal
 import struct
 import sys
 import threading
 import time
+from collections.abc import Sequence
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -40,7 +45,7 @@ import canopen
 
 from agf.errors import ConfigError
 from drivers.can_bus import open_bus
-from drivers.cia402_axis import DEFAULT_EDS, load_object_dictionary
+from drivers.cia402_axis import DEFAULT_EDS, DriveSettings, NetworkSettings, load_object_dictionary
 
 logger = logging.getLogger(__name__)
 
@@ -446,6 +451,15 @@ class SimDrive:
         return max(low, min(high, counts)) if low < high else counts
 
 
+def start_simulated_drives(
+    drives: Sequence[DriveSettings], bus_mapping: Any, settings: NetworkSettings, where: str
+) -> list[SimDrive]:
+    """A simulated drive per configured axis, in this process, each on its own connection to the bus
+    (a :data:`drivers.cia402_axis.DriveStarter`: the default configuration's ``plugins.drives``)."""
+    return [SimDrive.open(d.node_id, open_bus(bus_mapping, f"{where} bus"), eds=d.eds, cycle=settings.cycle)
+            for d in drives]
+
+
 def _command(word: int) -> str:
     """Decode the device-control command of a controlword (CiA 402 table)."""
     if not word & 0x02:
@@ -466,7 +480,7 @@ def _command(word: int) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run one simulated drive until ``quit`` on standard input or end of input."""
+    """Run one simulated drive until SIGINT, SIGTERM or ``quit`` on standard input."""
     parser = argparse.ArgumentParser(prog="python -m drivers.sim.drive", description=__doc__.splitlines()[0])
     parser.add_argument("--node-id", type=int, required=True)
     parser.add_argument("--interface", default="udp_multicast")
@@ -502,14 +516,41 @@ def main(argv: list[str] | None = None) -> int:
         timer = threading.Timer(seconds, drive.inject_fault, args=(code,))
         timer.daemon = True
         timer.start()
+    ended = _Ending()
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, lambda number, _: ended.set(signal.Signals(number).name))
     print(f"ready node {args.node_id}", flush=True)
+    threading.Thread(target=_read_commands, args=(drive, ended), name="commands", daemon=True).start()
     try:
-        for line in sys.stdin:
-            if not _command_line(drive, line.split()):
-                break
+        while not ended.wait(0.5):  # a timed wait lets the signal handlers run
+            pass
     finally:
         drive.close()
+    print(f"stopped node {args.node_id} at {datetime.now(UTC):%Y-%m-%d %H:%M:%S} UTC: {ended.reason}", flush=True)
     return 0
+
+
+class _Ending(threading.Event):
+    """Set once, with the reason the drive stops (the first one wins)."""
+
+    reason = "unknown"
+
+    def set(self, reason: str = "unknown") -> None:  # type: ignore[override]
+        if not self.is_set():
+            self.reason = reason
+        super().set()
+
+
+def _read_commands(drive: SimDrive, ended: _Ending) -> None:
+    """Commands from standard input until ``quit``; at its end the drive keeps serving."""
+    for line in sys.stdin:
+        if not _command_line(drive, line.split()):
+            ended.set("quit on standard input")
+            return
+    print("standard input closed; serving until SIGINT or SIGTERM", flush=True)
+
+
+_USAGE = "fault [CODE] | load PERCENT | limits LOW HIGH | silent | status | quit"
 
 
 def _command_line(drive: SimDrive, words: list[str]) -> bool:
@@ -518,6 +559,14 @@ def _command_line(drive: SimDrive, words: list[str]) -> bool:
     verb, values = words[0], words[1:]
     if verb == "quit":
         return False
+    try:
+        _run_command(drive, verb, values)
+    except (ValueError, IndexError):
+        print(f"bad arguments for {verb!r}: {_USAGE}", flush=True)
+    return True
+
+
+def _run_command(drive: SimDrive, verb: str, values: list[str]) -> None:
     if verb == "fault":
         drive.inject_fault(int(values[0], 0) if values else INJECTED)
     elif verb == "load":
@@ -530,9 +579,7 @@ def _command_line(drive: SimDrive, words: list[str]) -> bool:
         print(f"{drive.state} mode {drive.mode} position {drive.position:.1f} "
               f"error 0x{drive.error_code:04X}", flush=True)
     else:
-        print(f"unknown command {verb!r}: fault [CODE] | load PERCENT | limits LOW HIGH | silent | status | quit",
-              flush=True)
-    return True
+        print(f"unknown command {verb!r}: {_USAGE}", flush=True)
 
 
 if __name__ == "__main__":

@@ -12,12 +12,14 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import functools
+import json
 import math
 import multiprocessing
 import os
 import statistics
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -35,9 +37,12 @@ from agf.motion import plan_move
 from agf.pallets import load_pallets
 from agf.paths import repo_path
 from agf.planner import PickPlanner, pick_settings_from_mapping
+from agf.plugins import load_object
+from agf.recorder import McapRecorder, MeasurementSetup, Recorder, open_pick_log
 from agf.scene import Environment, Load, PalletPlacement, Scene, load_scene
 from agf.vision.measure import measure_pallet
 from agf.viz import fork_path_side_view, pick_plots
+from drivers.can_tap import CanTap
 from drivers.cia402_axis import axes_from_config
 from drivers.sim.collision import clearance, pallet_parts, tine_surface_points
 from drivers.sim.fast_render import render_fast
@@ -77,7 +82,8 @@ class SimulatedWorld:
         self.mast = MastGeometry()
         self.pallet = load_pallets(config.vision.pallets)[scene.pallet.type]
         self.network, self.axes = axes_from_config(
-            config.sections["drives"], config.sections["bus"], f"{config.source}:", base_dir=config.source.parent
+            config.sections["drives"], config.sections["bus"], f"{config.source}:", base_dir=config.source.parent,
+            start_drives=drive_starter(config),
         )
         self.frames_lost = 0
         self.min_clearance = math.inf
@@ -88,7 +94,11 @@ class SimulatedWorld:
         self.outlines: list[np.ndarray] = []  # per cycle, the left tine's side outline in frame P
         self.clearances: list[float] = []  # per cycle (m)
         self._parts = pallet_parts(self.pallet)
-        self._move_to(START)
+        try:
+            self._move_to(START)
+        except Exception:  # a world that never started must not leave its drives on the bus for the next one
+            self.network.close()
+            raise
         self.pallet_in_truck = fork_in_truck_from_axes(self.positions(), self.mast) @ scene.pallet.in_fork
 
     def __enter__(self) -> SimulatedWorld:
@@ -131,7 +141,7 @@ class SimulatedWorld:
                 self.axes[name].send_setpoint(value)
             next(iter(self.axes.values())).wait_for_feedback(timeout=0.2)
 
-    def controller(self, progress=None) -> PickController:
+    def controller(self, progress=None, recorder: Recorder | None = None) -> PickController:
         calibration = load_calibration(self.config.vision.calibration)
         camera = load_camera(self.config.vision.camera)
 
@@ -153,7 +163,27 @@ class SimulatedWorld:
             ControllerConfig(cycle=self.network.settings.cycle, timeouts=timeouts),
             on_cycle=self.on_cycle,
             progress=progress,
+            recorder=recorder,
         )
+
+
+@contextlib.contextmanager
+def pick_log(config: Config, scene: Scene, name: str) -> Iterator[McapRecorder]:
+    """The pick's MCAP log in the configured folder, with the bus traffic from before the drives start."""
+    setup = MeasurementSetup.from_config(config, scene.pallet.type if scene.pallet else None)
+    truth = {"scene_pallet_in_fork": json.dumps(scene.pallet.in_fork.to_dict())} if scene.pallet else {}
+    fork_in_truck = functools.partial(fork_in_truck_from_axes, mast=MastGeometry())
+    with (
+        open_pick_log(config, name, setup, context={"command": name, **truth}, fork_in_truck=fork_in_truck) as log,
+        CanTap(config.sections["bus"], f"{config.source}: bus", log),
+    ):
+        yield log
+
+
+def drive_starter(config: Config) -> Any:
+    """What ``plugins.drives`` names to start the drives with, or None (a truck's drives run on their own)."""
+    spec = config.plugins.get("drives")
+    return None if spec is None else load_object(spec, key=f"{config.source}: plugins.drives")
 
 
 def pick_summary(result: PickResult, world: SimulatedWorld) -> dict[str, Any]:
@@ -186,9 +216,9 @@ def _pick(config: Config, plots: Path | None, numbered: tuple[int, Scene]) -> di
     ``plots``/pick-NNN when ``plots`` is given."""
     index, scene = numbered
     try:
-        with SimulatedWorld(config, scene) as world:
-            result = world.controller().run()
-            summary = pick_summary(result, world)
+        with pick_log(config, scene, f"simulate-pick-{index:03d}") as log, SimulatedWorld(config, scene) as world:
+            result = world.controller(recorder=log).run()
+            summary = {**pick_summary(result, world), "log": str(log.path)}
         if plots is not None:
             summary["plots"] = world.plots(result, plots / f"pick-{index:03d}")
         return summary
@@ -201,9 +231,9 @@ def run_command(config: Config, *, plots: str | None = None, progress: bool = Tr
     scene_path = repo_path((config.sections.get("simulation") or {}).get("scene", "configs/scenes/pick.yaml"))
     scene = load_scene(scene_path)
     say = (lambda state: print(f"agf run: {state}", flush=True)) if progress else None
-    with SimulatedWorld(config, scene) as world:
-        result = world.controller(say).run()
-        summary = pick_summary(result, world)
+    with pick_log(config, scene, "run") as log, SimulatedWorld(config, scene) as world:
+        result = world.controller(say, log).run()
+        summary = {**pick_summary(result, world), "log": str(log.path)}
     if plots:
         summary["plots"] = world.plots(result, Path(plots))
     return summary
@@ -266,7 +296,7 @@ def simulate_command(
             done, inserted = len(summaries), sum(s["ok"] for s in summaries)
             print(f"agf simulate: {done}/{len(scenes)} picks, {inserted} inserted", file=sys.stderr, flush=True)
     failures = [
-        {"run": i, "reason": summary["reason"], "pallet_in_fork": s.pallet.in_fork.to_dict()}
+        {"run": i, "reason": summary["reason"], "pallet_in_fork": s.pallet.in_fork.to_dict(), "log": summary.get("log")}
         for i, (summary, s) in enumerate(zip(summaries, scenes, strict=True))
         if not summary["ok"]
     ]

@@ -34,7 +34,7 @@ from drivers.cia402_axis import (
     emcy_name,
     load_object_dictionary,
 )
-from drivers.sim.drive import SimDrive
+from drivers.sim.drive import SimDrive, start_simulated_drives
 
 REPO = Path(__file__).resolve().parents[2]
 REAL_EDS = REPO.parent / "shared" / "data" / "eds"
@@ -309,7 +309,6 @@ def test_eds_that_cannot_be_read_names_the_file(tmp_path: Path) -> None:
 SIM_DRIVES = {
     "cycle_ms": 10,
     "heartbeat_ms": 100,
-    "simulated": True,
     "axes": {
         "lift": {"node_id": 1, "counts_per_m": 100000, "minimum_mm": 0, "maximum_mm": 3000,
                  "max_velocity_mm_s": 400, "max_acceleration_mm_s2": 800, "max_jerk_mm_s3": 4000},
@@ -321,7 +320,7 @@ SIM_DRIVES = {
 
 def test_axes_from_config_with_simulated_drives() -> None:
     bus = {"interface": "virtual", "channel": f"config-{os.getpid()}"}
-    net, axes = axes_from_config(SIM_DRIVES, bus, "agf.yaml:")
+    net, axes = axes_from_config(SIM_DRIVES, bus, "agf.yaml:", start_drives=start_simulated_drives)
     try:
         assert set(axes) == {"lift", "tilt"}
         assert axes["tilt"].limits.maximum == pytest.approx(math.radians(6))
