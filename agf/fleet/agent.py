@@ -287,11 +287,12 @@ class FleetAgent:
         with self._lock:
             run.phase = phase
             state = self._actions[run.request.action_id]
-            state["actionStatus"] = status
-            state["actionDescription"] = f"controller: {phase}"
+            before = dict(state)
+            state.update(actionStatus=status, actionDescription=f"controller: {phase}")
             if phase == "paused":
                 self._finish_actions(run.pause_actions, "FINISHED")
-            self._publish_state()
+            if state != before or phase == "paused":
+                self._publish_state()
 
     def _finish(self, run: _PickRun, result: PickResult) -> None:
         state = self._actions[run.request.action_id]

@@ -384,7 +384,8 @@ def moving(truck: SimulatedFleetTruck) -> bool:
 def test_broker_loss_and_pause_hold_the_pick_and_cancel_stops_it_mid_motion(vehicle):
     fleet, truck, agent, broker = vehicle.fleet, vehicle.truck, vehicle.agent, vehicle.broker
     mark = fleet.order("o-hold", actions=[pick("pick-3", **PICK)])
-    fleet.wait("state", status("pick-3", "RUNNING"), since=mark, timeout=300)
+    state = fleet.wait("state", status("pick-3", "RUNNING", "FAILED"), since=mark, timeout=300)
+    assert action(state, "pick-3")["actionStatus"] == "RUNNING", state["errors"]
 
     broker.stop()  # the truck holds at the pick's next state boundary and tries to reconnect
     wait_for(lambda: agent.pick_phase() == "paused", 300)
