@@ -1,7 +1,7 @@
 """The truck as a VDA 5050 2.1 vehicle: orders with a ``pick``, instant actions, state and factsheet.
 
 One order runs one pick, on a node where the truck already stands (no navigation is built here). The
-pick action goes WAITING -> INITIALIZING -> RUNNING (-> PAUSED -> RUNNING) -> FINISHED, or FAILED with
+pick action goes WAITING -> INITIALIZING -> RUNNING -> FINISHED, or FAILED with
 a FATAL ``pickFailed`` error carrying the controller's reason; after a failure the truck takes no new
 pick until a local reset (never from the network, ISO 3691-4). Bad input never starts a pick: it
 becomes a WARNING in ``state.errors`` with its references, reported until an order is accepted.
@@ -283,7 +283,9 @@ class FleetAgent:
             self._finish(run, result)
 
     def _set_phase(self, run: _PickRun, phase: str) -> None:
-        status = {"connecting": "INITIALIZING", "paused": "PAUSED"}.get(phase, "RUNNING")
+        # A held pick stays RUNNING, described "controller: paused": the standard's text names PAUSED, but
+        # the 2.1.0 state schema's actionStatus has no such value, and a fleet validating states would drop it.
+        status = "INITIALIZING" if phase == "connecting" else "RUNNING"
         with self._lock:
             run.phase = phase
             state = self._actions[run.request.action_id]
@@ -394,10 +396,11 @@ class FleetAgent:
             self._state_due.clear()
 
     def _publish_state(self) -> None:
-        self._send("state", self._state())
+        self._send("state", self.state())
         self._state_due.set()  # restarts the period
 
-    def _state(self) -> dict[str, Any]:
+    def state(self) -> dict[str, Any]:
+        """The ``state`` message as it stands, without its header."""
         x, y, theta = self.truck.position()
         charge, charging = self.truck.battery()
         state: dict[str, Any] = {

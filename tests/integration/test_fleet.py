@@ -370,10 +370,12 @@ def test_an_order_picks_the_pallet(vehicle):
         write_sequence_diagram(fleet)
 
 
-def wait_for(test: Callable[[], bool], timeout: float) -> None:
+def wait_phase(agent: FleetAgent, test: Callable[[str], bool], timeout: float) -> None:
+    """Wait until the running pick's controller state passes ``test``; fail at once if the pick ended."""
     deadline = time.monotonic() + timeout
-    while not test():
-        assert time.monotonic() < deadline, f"not within {timeout} s"
+    while not test(phase := agent.pick_phase()):
+        assert phase is not None, f"the pick ended: {agent.state()['errors']}"
+        assert time.monotonic() < deadline, f"the pick is still {phase} after {timeout} s"
         time.sleep(0.05)
 
 
@@ -388,22 +390,25 @@ def test_broker_loss_and_pause_hold_the_pick_and_cancel_stops_it_mid_motion(vehi
     assert action(state, "pick-3")["actionStatus"] == "RUNNING", state["errors"]
 
     broker.stop()  # the truck holds at the pick's next state boundary and tries to reconnect
-    wait_for(lambda: agent.pick_phase() == "paused", 300)
-    assert steady(truck, 1.5)
-    mark = len(fleet.received)
-    broker.start()
+    try:
+        wait_phase(agent, lambda phase: phase == "paused", 300)
+        assert steady(truck, 1.5)
+    finally:
+        mark = len(fleet.received)
+        broker.start()
     fleet.wait("connection", lambda m: m["connectionState"] == "ONLINE", since=mark, timeout=60)
-    wait_for(lambda: agent.pick_phase() not in ("paused", None), 60)  # back online: the pick goes on
+    wait_phase(agent, lambda phase: phase != "paused", 60)  # back online: the pick goes on
 
     mark = fleet.instant("pause-1", "startPause")
-    state = fleet.wait("state", status("pause-1", "FINISHED"), since=mark, timeout=300)
-    assert state["paused"] and action(state, "pick-3")["actionStatus"] == "PAUSED"
+    state = fleet.wait("state", status("pause-1", "FINISHED", "FAILED"), since=mark, timeout=300)
+    held = action(state, "pick-3")
+    assert state["paused"] and held["actionStatus"] == "RUNNING" and held["actionDescription"] == "controller: paused"
     assert steady(truck, 1.5)
     mark = fleet.instant("resume-1", "stopPause")
-    state = fleet.wait("state", status("pick-3", "RUNNING"), since=mark, timeout=60)
+    state = fleet.wait("state", status("pick-3", "RUNNING", "FAILED"), since=mark, timeout=60)
     assert not state["paused"] and action(state, "resume-1")["actionStatus"] == "FINISHED"
 
-    wait_for(lambda: agent.pick_phase() in ("aligning", "inserting") and moving(truck), 300)
+    wait_phase(agent, lambda phase: phase in ("aligning", "inserting") and moving(truck), 300)
     mark = fleet.instant("cancel-1", "cancelOrder")
     state = fleet.wait("state", status("pick-3", "FAILED"), since=mark, timeout=60)
     assert action(state, "cancel-1")["actionStatus"] == "FINISHED"
