@@ -94,14 +94,6 @@ class FleetAgent:
         if self._link is not None:
             self._link.close(self._encode("connection", {"connectionState": "OFFLINE"}))
 
-    def wait_idle(self, timeout: float | None = None) -> bool:
-        """Wait until no pick runs; False on timeout."""
-        worker = self._worker
-        if worker is not None:
-            worker.join(timeout)
-            return not worker.is_alive()
-        return True
-
     def pick_phase(self) -> str | None:
         """The running pick's controller state (``paused`` while it holds), None when no pick runs."""
         run = self._run
@@ -123,11 +115,11 @@ class FleetAgent:
     def on_link(self, up: bool) -> None:
         with self._lock:
             self._link_up = up
-            self._apply_hold()
             if up:
                 self._send("connection", {"connectionState": "ONLINE"})
                 self._send("factsheet", self._factsheet())
                 self._publish_state()
+            self._apply_hold()  # back online, and the fleet has the state: a held pick goes on
 
     def on_message(self, topic: str, payload: bytes) -> None:
         kind = topic.rsplit("/", 1)[-1]
