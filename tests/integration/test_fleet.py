@@ -239,6 +239,12 @@ def test_bad_input_becomes_an_error_with_its_reference_and_moves_nothing(vehicle
     fleet = vehicle.fleet
     factsheet = fleet.wait("factsheet", lambda m: True)
     assert {s["loadType"] for s in factsheet["loadSpecification"]["loadSets"]} >= {"jis-t11", "epal"}
+    late = FleetManager(vehicle.broker.port, fleet.prefix, fleet.manufacturer, "late")  # connection and factsheet
+    try:  # are retained: a fleet manager that subscribes later still gets them
+        assert late.wait("connection", lambda m: True)["connectionState"] == "ONLINE"
+        assert late.wait("factsheet", lambda m: True) == factsheet
+    finally:
+        late.close()
 
     mark = fleet.send("order", b"{not json")
     fleet.wait("state", has_error("validationError", topic="order"), since=mark)
@@ -402,7 +408,8 @@ def test_broker_loss_and_pause_hold_the_pick_and_cancel_stops_it_mid_motion(vehi
     mark = fleet.instant("pause-1", "startPause")
     state = fleet.wait("state", status("pause-1", "FINISHED", "FAILED"), since=mark, timeout=300)
     held = action(state, "pick-3")
-    assert state["paused"] and held["actionStatus"] == "RUNNING" and held["actionDescription"] == "controller: paused"
+    assert held["actionStatus"] == "RUNNING" and held["actionDescription"] == "controller: paused", state["errors"]
+    assert state["paused"]
     assert steady(truck, 1.5)
     mark = fleet.instant("resume-1", "stopPause")
     state = fleet.wait("state", status("pick-3", "RUNNING", "FAILED"), since=mark, timeout=60)
