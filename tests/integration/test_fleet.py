@@ -8,7 +8,6 @@ resumed, and is cancelled mid-motion."""
 
 from __future__ import annotations
 
-import asyncio
 import dataclasses
 import itertools
 import json
@@ -34,7 +33,7 @@ if not SCHEMAS.is_dir():
         "../shared/reference/vda5050-2.1.0 is absent: the vehicle's messages cannot be checked against the schemas",
         allow_module_level=True,
     )
-amqtt_broker = pytest.importorskip("amqtt.broker", reason="amqtt (the test extra) is not installed")
+pytest.importorskip("amqtt.broker", reason="amqtt (the test extra) is not installed")
 mqtt = pytest.importorskip("paho.mqtt.client")
 jsonschema = pytest.importorskip("jsonschema")
 
@@ -57,29 +56,41 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+BROKER = """
+import asyncio, sys
+from amqtt.broker import Broker
+
+async def serve():
+    await Broker({"listeners": {"default": {"type": "tcp", "bind": "127.0.0.1:" + sys.argv[1]}}}).start()
+    await asyncio.Event().wait()
+
+asyncio.run(serve())
+"""
+
+
 class LoopbackBroker:
-    """amqtt on 127.0.0.1, on an event loop of its own thread; stop and start it to lose the broker."""
+    """amqtt on 127.0.0.1 in a process of its own: ``stop`` kills it, as a broker that goes away would go."""
 
     def __init__(self) -> None:
         self.port = free_port()
-        self.loop = asyncio.new_event_loop()
-        threading.Thread(target=self.loop.run_forever, daemon=True).start()
-        self.broker: Any = None
-
-    def _do(self, coroutine: Any) -> None:
-        asyncio.run_coroutine_threadsafe(coroutine, self.loop).result(timeout=20)
+        self.process: subprocess.Popen | None = None
 
     def start(self) -> None:
-        config = {"listeners": {"default": {"type": "tcp", "bind": f"127.0.0.1:{self.port}"}}}
-
-        async def start() -> None:
-            self.broker = amqtt_broker.Broker(config)
-            await self.broker.start()
-
-        self._do(start())
+        command = [sys.executable, "-c", BROKER, str(self.port)]
+        self.process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                socket.create_connection(("127.0.0.1", self.port), timeout=1).close()
+                return
+            except OSError:
+                assert self.process.poll() is None, "the amqtt broker did not start"
+                assert time.monotonic() < deadline, "the amqtt broker did not listen within 60 s"
+                time.sleep(0.1)
 
     def stop(self) -> None:
-        self._do(self.broker.shutdown())
+        self.process.kill()
+        self.process.wait()
 
 
 class FleetManager:
