@@ -1,4 +1,4 @@
-"""The ``agf`` command: ``run | measure | calibrate | render | simulate | replay | bench``.
+"""The ``agf`` command: ``run | measure | calibrate | render | simulate | replay | serve | bench``.
 
 Every sub-command takes ``--config`` and ``--json``. With ``--json`` it prints exactly one JSON
 object on stdout; on failure that object is ``{"ok": false, "error": "..."}``. Exit codes:
@@ -102,6 +102,16 @@ def _cmd_replay(args: argparse.Namespace, config: Config) -> dict[str, Any]:
     return replay_command(config, _existing_file(args.log), plots=args.plots)
 
 
+def _cmd_serve(args: argparse.Namespace, config: Config) -> dict[str, Any]:
+    from agf.fleet.service import fleet_settings, serve_command
+
+    fleet_settings(config.fleet, args.broker, args.manufacturer, args.serial)  # bad flags before any plugin starts
+    truck = _plugin(config, "fleet_truck")(config)
+    return serve_command(
+        config, _plugin(config, "fleet"), truck, broker=args.broker, manufacturer=args.manufacturer, serial=args.serial
+    )
+
+
 def _cmd_bench(args: argparse.Namespace, config: Config) -> dict[str, Any]:
     from agf.bench import run_bench
 
@@ -172,6 +182,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("log", help="the pick's MCAP log (see docs/recorder.md)")
     p.add_argument("--plots", metavar="DIR", help="draw the pick from the log alone (PNG) here")
     p.set_defaults(handler=_cmd_replay)
+
+    p = sub.add_parser("serve", parents=[common], help="a VDA 5050 2.1 vehicle on an MQTT broker (docs/fleet.md)")
+    p.add_argument("--broker", metavar="URL", help="mqtt://HOST:PORT or mqtts://HOST:PORT (overrides fleet.broker)")
+    p.add_argument("--manufacturer", help="VDA 5050 manufacturer, a topic level (overrides fleet.manufacturer)")
+    p.add_argument("--serial", help="VDA 5050 serial number, a topic level (overrides fleet.serial_number)")
+    p.set_defaults(handler=_cmd_serve)
 
     p = sub.add_parser("bench", parents=[common], help="speed and accuracy figures")
     p.add_argument("--quick", action="store_true", help="reduced set, fast enough for CI")

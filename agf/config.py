@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import types
 import typing
 from collections.abc import Mapping
@@ -264,6 +265,86 @@ class BenchConfig:
     modules: tuple[str, ...] = ()
 
 
+_TOPIC_LEVEL = re.compile(r"[A-Za-z0-9_.:-]+")
+
+
+def _require_topic_level(name: str, value: str) -> None:
+    """VDA 5050 6.3: a topic level holds A-Z a-z 0-9 _ . : - (no '/', '$' or MQTT wildcards)."""
+    if not _TOPIC_LEVEL.fullmatch(value):
+        raise ValueError(f"{name}: {value!r} may hold only A-Z a-z 0-9 _ . : - (it is an MQTT topic level)")
+
+
+@dataclass(frozen=True)
+class BrokerConfig:
+    """The MQTT broker of the fleet; the password comes from an environment variable or a file, never
+    from the configuration itself."""
+
+    host: str = "127.0.0.1"
+    port: int = 1883
+    tls: bool = False
+    ca_file: Path | None = path_field(None)
+    username: str | None = None
+    password_env: str | None = None
+    password_file: Path | None = path_field(None)
+    keepalive: float = unit("s", 15.0)
+    reconnect_min: float = unit("s", 1.0)
+    reconnect_max: float = unit("s", 30.0)
+
+    def __post_init__(self) -> None:
+        if not 0 < self.port < 65536:
+            raise ValueError(f"port: expected 1..65535, got {self.port}")
+        if self.password_env and self.password_file:
+            raise ValueError("give password_env or password_file, not both")
+        if (self.password_env or self.password_file) and not self.username:
+            raise ValueError("a password needs a username")
+        if self.ca_file and not self.tls:
+            raise ValueError("ca_file is given but tls is false")
+        require_positive("keepalive_s", self.keepalive)
+        require_positive("reconnect_min_s", self.reconnect_min)
+        if self.reconnect_max < self.reconnect_min:
+            raise ValueError(f"reconnect_max_s ({self.reconnect_max}) is below reconnect_min_s ({self.reconnect_min})")
+
+
+@dataclass(frozen=True)
+class TruckFacts:
+    """What the VDA 5050 factsheet says about the truck that the rest of the configuration does not."""
+
+    series_name: str = "AGF reach truck"
+    length: float = unit("mm", 2.4)
+    width: float = unit("mm", 1.2)
+    height_max: float = unit("mm", 3.5)
+    max_load_kg: float = 1400.0
+
+    def __post_init__(self) -> None:
+        for name in ("length", "width", "height_max"):
+            require_positive(f"{name}_mm", getattr(self, name))
+        require_positive("max_load_kg", self.max_load_kg)
+
+
+@dataclass(frozen=True)
+class FleetConfig:
+    """The VDA 5050 interface (``agf serve``): topics ``interface_name/v2/manufacturer/serial_number/...``."""
+
+    interface_name: str = "uagv"
+    manufacturer: str = "agf"
+    serial_number: str = "sim-0001"
+    map_id: str = "hall"
+    state_period: float = unit("s", 30.0)
+    node_deviation: float = unit("mm", 0.5)
+    height_window: float = unit("mm", 0.1)
+    pick_time: float = unit("s", 60.0)
+    broker: BrokerConfig = field(default_factory=BrokerConfig)
+    truck: TruckFacts = field(default_factory=TruckFacts)
+
+    def __post_init__(self) -> None:
+        for name in ("interface_name", "manufacturer", "serial_number"):
+            _require_topic_level(name, getattr(self, name))
+        if not 0 < self.state_period <= 30.0:
+            raise ValueError(f"state_period_s: VDA 5050 wants a state at least every 30 s, got {self.state_period}")
+        for name, key in (("node_deviation", "_mm"), ("height_window", "_mm"), ("pick_time", "_s")):
+            require_positive(name + key, getattr(self, name))
+
+
 @dataclass(frozen=True)
 class RecorderConfig:
     """Where every pick's MCAP log goes (``folder``, relative to the config file), how much of it is
@@ -289,6 +370,7 @@ class Config:
     forks: ForkGeometry = field(default_factory=ForkGeometry)
     plugins: dict[str, str] = field(default_factory=dict)
     bench: BenchConfig = field(default_factory=BenchConfig)
+    fleet: FleetConfig = field(default_factory=FleetConfig)
     sections: dict[str, Any] = field(default_factory=dict)
     recorder: RecorderConfig = field(default_factory=RecorderConfig)
 
@@ -305,6 +387,7 @@ class _ConfigFile:
     plugins: dict[str, str] = field(default_factory=dict)
     bench: BenchConfig = field(default_factory=BenchConfig)
     recorder: RecorderConfig = field(default_factory=RecorderConfig)
+    fleet: FleetConfig = field(default_factory=FleetConfig)
     # Sections whose typed parsers live with the code that uses them (drives, motion, insertion,
     # controller, simulation); each is validated by that code's own ``from_mapping``.
     drives: Any = None
@@ -340,6 +423,7 @@ def load_config(path: str | Path) -> Config:
         forks=parsed.forks,
         plugins=parsed.plugins,
         bench=parsed.bench,
+        fleet=parsed.fleet,
         sections=sections,
         recorder=parsed.recorder,
     )

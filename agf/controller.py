@@ -8,7 +8,9 @@ Events come from one thread, the one calling :meth:`PickController.run`; the dri
 and an operator stop only set a flag that the loop checks every control cycle. Any fault, lost frame,
 refused measurement or plan, timeout or operator stop ends in quick stop of every axis and the FAULT
 state with the reason; only an explicit :meth:`PickController.reset` leaves it (ISO 3691-4: no
-automatic restart after an emergency stop).
+automatic restart after an emergency stop). :meth:`PickController.pause` holds the pick at the next
+state boundary (between motions, never inside one) until :meth:`PickController.resume`; a stop or a
+drive fault while holding still ends in FAULT.
 
 Every transition (with its reason), frame, measurement or refusal, plan and control cycle (setpoints
 sent, feedback read) is reported to a :class:`agf.recorder.Recorder`: the pick's log.
@@ -150,6 +152,8 @@ class PickController:
         self.machine = PickMachine()
         self._alarm: str | None = None
         self._lock = threading.Lock()
+        self._running = threading.Event()  # cleared while a pause is asked for
+        self._running.set()
         for axis in axes.values():
             axis.add_fault_listener(self._on_fault)
 
@@ -158,6 +162,14 @@ class PickController:
         """Operator stop, from any thread: the pick ends in quick stop at the next cycle."""
         with self._lock:
             self._alarm = self._alarm or reason
+
+    def pause(self) -> None:
+        """Hold at the next state boundary, from any thread; the motion under way finishes first."""
+        self._running.clear()
+
+    def resume(self) -> None:
+        """Leave a pause: the pick continues with the state it held before."""
+        self._running.set()
 
     def reset(self) -> None:
         """Leave FAULT (or DONE) for IDLE; the only way out of FAULT."""
@@ -187,8 +199,9 @@ class PickController:
         replans = 0
         while (state := self._state()) not in ("done", "fault"):
             start = time.monotonic()
-            self.progress(state)
             try:
+                start += self._hold()
+                self.progress(state)
                 self._check_alarm()
                 if state == "acquiring":
                     frame = self._read_frame()
@@ -214,6 +227,16 @@ class PickController:
         result.state = self._state()
         result.ok = result.state == "done"
         return result
+
+    def _hold(self) -> float:
+        """Wait while paused, watching stops and drive faults; the seconds held (not the state's time)."""
+        if self._running.is_set():
+            return 0.0
+        start = time.monotonic()
+        self.progress("paused")
+        while not self._running.wait(self.config.cycle):
+            self._check_alarm()
+        return time.monotonic() - start
 
     def _state(self) -> str:
         return next(iter(self.machine.configuration)).id
