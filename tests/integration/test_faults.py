@@ -111,19 +111,23 @@ def test_one_percent_frame_loss_is_ridden_through(pick_folder: Path, caplog) -> 
 
 
 def test_foreign_and_malformed_frames_are_ignored(pick_folder: Path, caplog) -> None:
-    """3000 frames from COB-IDs no node uses, and three feedback PDOs of the wrong length, mid-motion."""
+    """200 frames from COB-IDs no node uses, and three feedback PDOs of the wrong length, mid-motion.
+    (A flood long enough to keep the drives' frames off a real bus is lost feedback: the rows
+    can_burst_200ms and can_loss_10pct.)"""
 
     def inject(pick: FaultPick) -> None:
         node = pick.world.axes["reach"].drive.node_id
-        pick.bus.inject(flood(range(0x10, 0x80), 3000) + flood([0x180 + node], 3, seed=1))
+        pick.bus.inject(flood(range(0x10, 0x80), 200) + flood([0x180 + node], 3, seed=1))
 
     with FaultPick(pick_folder) as pick:
         reaction = pick.run(inject)
         rejected = pick.world.axes["reach"]._rejected
     assert reaction.result.ok, reaction.result.reason
     assert rejected >= 1 and "rejected" in caplog.text
-    reach = [row["actual"]["reach"] for row in reaction.result.log]
-    assert np.abs(np.diff(reach)).max() < 0.25 * 0.05  # no jump from a bad value: < v_max x 5 cycles
+    log = reaction.result.log
+    reach, t = np.array([row["actual"]["reach"] for row in log]), np.array([row["t"] for row in log])
+    limit = pick.world.axes["reach"].limits.max_velocity
+    assert np.all(np.abs(np.diff(reach)) <= 1.2 * limit * np.diff(t) + 1e-3)  # no jump from a bad value
 
 
 def test_one_bad_camera_frame_is_read_again(rendered, tmp_path: Path, caplog) -> None:
