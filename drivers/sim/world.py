@@ -131,7 +131,7 @@ class SimulatedWorld:
         now = self.positions()
         motion = plan_move(now, target, {n: a.limits for n, a in self.axes.items()})
         self.network.stream(lambda t: motion.at(min(t, motion.duration)))  # from the SYNC thread
-        deadline = time.monotonic() + 3 * motion.duration + 2.0  # SYNC time runs behind on a loaded CPU
+        deadline = time.monotonic() + 10 * motion.duration + 5.0  # SYNC time runs behind on a loaded CPU
         while time.monotonic() < deadline and any(abs(p - target[n]) > 1e-4 for n, p in self.positions().items()):
             next(iter(self.axes.values())).wait_for_feedback(timeout=0.2)
         self.network.stream(None)
