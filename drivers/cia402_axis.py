@@ -69,10 +69,10 @@ EMCY_NAMES: dict[int, str] = {
 MODES = {"csp": 8, "pp": 1}
 
 SDO_ATTEMPTS = 3  # tries per SDO request at start-up: a lost answer is retried, a dead drive is not waited on
-# Feedback supervision, counted in SYNC cycles (exact, whatever the load): more than FEEDBACK_MISSING
-# of FEEDBACK_WINDOW SYNCs without a TPDO1 answer is a fault; an answer may be FEEDBACK_GRACE cycles
-# late. A single lost frame passes; 20 cycles of silence (a 200 ms burst at a 10 ms cycle) or 10 %
-# frame loss does not.
+# Feedback supervision while a motion is streamed, counted in SYNC cycles (exact, whatever the
+# load): more than FEEDBACK_MISSING of FEEDBACK_WINDOW SYNCs without a TPDO1 answer is a fault; an
+# answer may be FEEDBACK_GRACE cycles late. A single lost frame passes; 20 cycles of silence (a
+# 200 ms burst at a 10 ms cycle) or 10 % frame loss does not.
 FEEDBACK_WINDOW, FEEDBACK_MISSING, FEEDBACK_GRACE = 100, 10, 10
 # SCHED_RR priorities (1..99) of the master's threads where the OS allows it: above every ordinary
 # process, far below the kernel's own interrupt threads (50)
@@ -710,6 +710,11 @@ class Cia402Axis(Axis):
         # (expected - received) grows by one per lost frame and never shrinks back.
         if not self._supervised or self._fault is not None or self._first_sync is None:
             return
+        if self._net._stream is None:
+            # at rest the heartbeat watchdog supervises the drive: a CPU-bound controller thread
+            # (measuring; rendering in the simulated world) may delay feedback, not lose it
+            self._deficits.clear()
+            return
         expected = self._net.syncs - FEEDBACK_GRACE - self._first_sync
         self._deficits.append((expected - self._tpdos, self._tpdos))
         (first_deficit, first_count), (deficit, count) = self._deficits[0], self._deficits[-1]
@@ -770,7 +775,7 @@ class Cia402Axis(Axis):
             self._raise_fault(f"heartbeat lost (silent for {now - self._last_heartbeat:.3f} s)")
             return
         tpdo_timeout = max(10 * self._net.settings.cycle, 2.5 * heartbeat)
-        if self._last_tpdo is not None and now - self._last_tpdo > tpdo_timeout:
+        if self._net._stream is not None and self._last_tpdo is not None and now - self._last_tpdo > tpdo_timeout:
             self._raise_fault(f"TPDO feedback lost (none for {now - self._last_tpdo:.3f} s)")
 
     def _raise_fault(self, reason: str) -> None:
