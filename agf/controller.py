@@ -18,6 +18,7 @@ sent, feedback read) is reported to a :class:`agf.recorder.Recorder`: the pick's
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -28,9 +29,11 @@ from statemachine import State, StateMachine
 
 from agf.axis import Axis, AxisState
 from agf.errors import AgfError, DriveFault
-from agf.frames import Frame, FrameSource
+from agf.frames import Frame, FrameLost, FrameSource
 from agf.measurement import PalletMeasurement
 from agf.recorder import Recorder
+
+logger = logging.getLogger(__name__)
 
 
 class PickMachine(StateMachine):
@@ -84,6 +87,13 @@ class Motion(Protocol):
     def at(self, t: float) -> Mapping[str, float]: ...
 
 
+class Streamer(Protocol):
+    """Sends a motion's set-points from the bus's own cycle (e.g. the CANopen SYNC thread)."""
+
+    def stream(self, setpoints: Callable[[float], Mapping[str, float]] | None) -> None:
+        """Send ``setpoints(t)`` every cycle from now on (``t`` s since this call); None stops it."""
+
+
 class Planner(Protocol):
     """What the controller needs from kinematics, insertion and motion planning."""
 
@@ -116,6 +126,7 @@ class ControllerConfig:
     )
     arrive_tolerance: float = 0.002
     replans: int = 1
+    frame_attempts: int = 3  # a lost or unusable frame is read again, up to this many reads in all
 
 
 @dataclass
@@ -144,8 +155,10 @@ class PickController:
         on_cycle: Callable[[Mapping[str, float]], None] | None = None,
         progress: Callable[[str], None] | None = None,
         recorder: Recorder | None = None,
+        streamer: Streamer | None = None,
     ) -> None:
         self.axes, self.frames, self.measure, self.planner = axes, frames, measure, planner
+        self.streamer = streamer
         self.config, self.on_cycle = config, on_cycle
         self.recorder = recorder or Recorder()  # the base records nothing
         self.progress = progress or (lambda message: None)
@@ -283,6 +296,19 @@ class PickController:
         self._follow(self.planner.align_motion(self._positions(), result.plan), "aligning", result)
         return "aligned"
 
+    def _read_frame(self) -> Frame:
+        """The next frame; a lost, black, saturated, truncated or wrong-sized one is read again, a
+        bounded number of times, each retry logged. The last reason ends the pick."""
+        attempt = 1
+        while True:
+            try:
+                return self.frames.read(self.config.timeouts["acquiring"])
+            except FrameLost as exc:
+                if attempt >= self.config.frame_attempts:
+                    raise FrameLost(f"{exc} ({attempt} reads, none usable)") from exc
+                attempt += 1
+                logger.warning("frame refused (%s); reading again, %d of %d", exc, attempt, self.config.frame_attempts)
+
     def _verify(self, result: PickResult) -> str:
         frame = self._read_frame()
         measurement = self._measure("verifying", frame, result.measurements[-1])
@@ -301,25 +327,42 @@ class PickController:
         return {name: axis.feedback().position for name, axis in self.axes.items()}
 
     def _follow(self, motion: Motion, state: str, result: PickResult) -> None:
-        """Stream ``motion`` one setpoint per cycle, then wait until every axis arrives."""
+        """Stream ``motion`` one setpoint per cycle, then wait until every axis arrives.
+
+        With a streamer the set-points go out from the bus's cycle and this loop only watches."""
         deadline = time.monotonic() + self.config.timeouts[state]
         t0 = time.monotonic()
         target = motion.at(motion.duration)
+
+        def at(t: float) -> Mapping[str, float]:
+            return motion.at(min(t, motion.duration))
+
+        if self.streamer is not None:
+            self.streamer.stream(at)
+        try:
+            self._watch_motion(at, target, t0, deadline, motion.duration, state, result)
+        finally:
+            if self.streamer is not None:
+                self.streamer.stream(None)
+
+    def _watch_motion(self, at: Callable[[float], Mapping[str, float]], target: Mapping[str, float], t0: float,
+                      deadline: float, duration: float, state: str, result: PickResult) -> None:
         while True:
             now = time.monotonic()
             if now > deadline:
                 raise TimeoutError(f"motion not finished within {self.config.timeouts[state]} s")
             self._check_alarm()
-            setpoints = motion.at(min(now - t0, motion.duration))
-            for name, value in setpoints.items():
-                self.axes[name].send_setpoint(value)
+            setpoints = at(now - t0)
+            if self.streamer is None:
+                for name, value in setpoints.items():
+                    self.axes[name].send_setpoint(value)
             feedback = {name: axis.feedback() for name, axis in self.axes.items()}
             self.recorder.cycle(state, setpoints, feedback)
             positions = {name: f.position for name, f in feedback.items()}
             result.log.append({"t": now, "state": state, "setpoint": dict(setpoints), "actual": positions})
             if self.on_cycle is not None:
                 self.on_cycle(positions)
-            if now - t0 >= motion.duration and all(
+            if now - t0 >= duration and all(
                 abs(positions[n] - v) <= self.config.arrive_tolerance for n, v in target.items()
             ):
                 return
@@ -344,6 +387,8 @@ class PickController:
 
     def _safe_stop(self) -> None:
         """Quick stop every axis; a failing axis must not keep the others moving."""
+        if self.streamer is not None:
+            self.streamer.stream(None)
         for axis in self.axes.values():
             try:
                 axis.quick_stop()

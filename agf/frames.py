@@ -20,6 +20,23 @@ class FrameLost(AgfError):
     """No usable frame arrived within the timeout (camera unplugged, replay exhausted, bad data)."""
 
 
+# A frame this dark or this bright holds no edges to measure: refused before measuring (the lens
+# covered, a light failed, the sun in the lens). Fisheye frames have black corners: the dark test
+# looks at the brightest 1 %, the bright one at the share of saturated pixels.
+DARK_LEVEL, BRIGHT_LEVEL, SATURATED_SHARE = 16, 250, 0.5
+
+
+def exposure_problem(image: NDArray[np.uint8]) -> str | None:
+    """Why ``image`` (H x W [x 3] uint8) cannot be measured: black or saturated; None if neither."""
+    sample = image[::4, ::4]
+    if np.percentile(sample, 99) < DARK_LEVEL:
+        return f"black frame (99 % of the pixels below {DARK_LEVEL}): lens covered or no light"
+    saturated = float(np.mean(sample >= BRIGHT_LEVEL))
+    if saturated > SATURATED_SHARE:
+        return f"saturated frame ({saturated:.0%} of the pixels at {BRIGHT_LEVEL} or more): overexposed"
+    return None
+
+
 @dataclass(frozen=True)
 class Frame:
     """One fisheye frame: BGR or grey uint8 pixels, when it was taken (monotonic s), its number."""
@@ -37,7 +54,8 @@ class FrameSource(ABC):
         self._count = 0
 
     def read(self, timeout: float = 1.0) -> Frame:
-        """The next frame; :class:`FrameLost` with the reason if none arrives or it has the wrong size."""
+        """The next frame; :class:`FrameLost` with the reason if none arrives, it has the wrong size, or it
+        is black or saturated."""
         image = self._read(timeout)
         if image is None:
             raise FrameLost(f"{self.describe()}: no frame within {timeout:.2f} s")
@@ -46,6 +64,9 @@ class FrameSource(ABC):
                 f"{self.describe()}: frame is {image.shape[1]} x {image.shape[0]} {image.dtype}, "
                 f"expected {self.width} x {self.height} uint8 (the camera model's size)"
             )
+        problem = exposure_problem(image)
+        if problem is not None:
+            raise FrameLost(f"{self.describe()}: {problem}")
         self._count += 1
         return Frame(image, time.monotonic(), self._count)
 

@@ -8,10 +8,12 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from agf.axis import AxisLimits
 from agf.config import ForkGeometry, section_from_mapping, unit
 from agf.insertion import InsertionConfig, InsertionPlan, plan_insertion
-from agf.kinematics import MastGeometry
+from agf.kinematics import MastGeometry, fork_in_truck_from_axes
 from agf.measurement import PalletMeasurement
 from agf.motion import Trajectory, plan_move
 from agf.pallets import PalletType
@@ -72,11 +74,13 @@ class PickPlanner:
         }
 
     def verify(self, measurement: PalletMeasurement, plan: InsertionPlan) -> str | None:
-        """After aligning, the pallet should sit straight ahead at the stand-off, level with the forks."""
+        """After aligning, the pallet should be where the plan put it relative to the aligned forks:
+        at the stand-off, level with them and, with no side shift to correct it, as far to the side as
+        first measured. A pallet bumped since (sideways too) is caught here, before inserting."""
+        expected = fork_in_truck_from_axes(plan.align, self.mast).inverse() @ plan.pallet_in_truck
         d = measurement.pallet_in_fork
-        yaw, pitch, _ = d.euler
-        x, y, z = d.translation
-        position_error = math.hypot(x - self.settings.standoff, z)
+        pitch = d.euler[1]
+        position_error = float(np.linalg.norm(d.translation - expected.translation))
         if position_error > self.settings.verify_position or abs(pitch) > self.settings.verify_pitch:
             return (
                 f"after aligning the pallet is {position_error * 1e3:.1f} mm and {math.degrees(pitch):.2f} deg "

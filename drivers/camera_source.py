@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 
 from agf.config import child
 from agf.errors import ConfigError, NotAvailableError
-from agf.frames import FrameSource
+from agf.frames import FrameLost, FrameSource
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
 
@@ -32,8 +32,7 @@ class ImageFile(FrameSource):
         return f"image {self.path}"
 
     def _read(self, timeout: float) -> NDArray[np.uint8] | None:
-        image = cv2.imread(str(self.path), cv2.IMREAD_COLOR)
-        return None if image is None else split_dual_fisheye(image, self.lens)
+        return split_dual_fisheye(read_image(self.path), self.lens)
 
 
 class Folder(FrameSource):
@@ -43,6 +42,7 @@ class Folder(FrameSource):
         super().__init__(width, height)
         self.path, self.lens = Path(path), lens
         self.files = sorted(p for p in self.path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+        self._next = 0
         if not self.files:
             raise ConfigError(f"{self.path}: no images ({', '.join(sorted(IMAGE_SUFFIXES))}) to replay")
 
@@ -50,10 +50,10 @@ class Folder(FrameSource):
         return f"folder {self.path}"
 
     def _read(self, timeout: float) -> NDArray[np.uint8] | None:
-        if self._count >= len(self.files):
+        if self._next >= len(self.files):
             return None
-        image = cv2.imread(str(self.files[self._count]), cv2.IMREAD_COLOR)
-        return None if image is None else split_dual_fisheye(image, self.lens)
+        self._next += 1  # a bad file is skipped, not read again: a retry takes the next frame
+        return split_dual_fisheye(read_image(self.files[self._next - 1]), self.lens)
 
 
 class Video(FrameSource):
@@ -85,6 +85,24 @@ class Video(FrameSource):
 
     def close(self) -> None:
         self.capture.release()
+
+
+def read_image(path: Path) -> NDArray[np.uint8]:
+    """Decode an image file; :class:`FrameLost` naming the file if it is unreadable or a truncated JPEG.
+
+    OpenCV decodes a JPEG cut short (a transfer interrupted) into a grey-filled image with only a
+    warning: the end-of-image marker is checked first so such a frame never reaches the measurement.
+    """
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise FrameLost(f"{path}: cannot be read ({exc.strerror})") from exc
+    if path.suffix.lower() in (".jpg", ".jpeg") and not data.rstrip(b"\0").endswith(b"\xff\xd9"):
+        raise FrameLost(f"{path}: truncated JPEG ({len(data)} bytes, no end-of-image marker)")
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    if image is None:
+        raise FrameLost(f"{path}: not a decodable image")
+    return image
 
 
 def split_dual_fisheye(image: NDArray[np.uint8], lens: str | None) -> NDArray[np.uint8]:

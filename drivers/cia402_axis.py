@@ -19,10 +19,12 @@ statusword), and nothing inside a CAN callback blocks on SDO.
 
 from __future__ import annotations
 
+import collections
 import configparser
 import io
 import logging
 import math
+import os
 import re
 import threading
 import time
@@ -66,11 +68,58 @@ EMCY_NAMES: dict[int, str] = {
 
 MODES = {"csp": 8, "pp": 1}
 
+SDO_ATTEMPTS = 3  # tries per SDO request at start-up: a lost answer is retried, a dead drive is not waited on
+# Feedback supervision while a motion is streamed, counted in SYNC cycles (exact, whatever the
+# load): more than FEEDBACK_MISSING of FEEDBACK_WINDOW SYNCs without a TPDO1 answer is a fault; an
+# answer may be FEEDBACK_GRACE cycles late. A single lost frame passes; 20 cycles of silence (a
+# 200 ms burst at a 10 ms cycle) or 10 % frame loss does not.
+FEEDBACK_WINDOW, FEEDBACK_MISSING, FEEDBACK_GRACE = 100, 10, 10
+# SCHED_RR priorities (1..99) of the master's threads where the OS allows it: above every ordinary
+# process, far below the kernel's own interrupt threads (50)
+PRODUCER_PRIORITY, RECEIVE_PRIORITY, WATCHDOG_PRIORITY = 30, 29, 28
+
 _STATUS_MASKS = {  # statusword -> collapsed axis state, order matters (fault bits first)
     AxisState.FAULT: ((0x4F, 0x08), (0x4F, 0x0F)),
     AxisState.ENABLED: ((0x6F, 0x27),),
     AxisState.QUICK_STOP: ((0x6F, 0x07),),
 }
+
+
+def raise_priority(thread: threading.Thread, priority: int) -> str:
+    """Give a started ``thread`` real-time round-robin ``priority`` where the OS allows it, else nice -10.
+
+    Linux schedules threads, not processes, so only that thread is raised. Returns what it got
+    (``"SCHED_RR 30"``, ``"nice -10"`` or ``"normal"``); the last is logged once per thread.
+    """
+    tid = thread.native_id
+    if tid is None:
+        raise ValueError(f"thread {thread.name} is not started")
+    try:
+        os.sched_setscheduler(tid, os.SCHED_RR, os.sched_param(priority))
+        return f"SCHED_RR {priority}"
+    except (AttributeError, OSError):  # not Linux, or no CAP_SYS_NICE
+        pass
+    try:
+        os.setpriority(os.PRIO_PROCESS, tid, -10)
+        return "nice -10"
+    except (AttributeError, OSError):
+        logger.info("thread %s runs at normal priority (the OS refused a higher one)", thread.name)
+        return "normal"
+
+
+def raise_receive_priority(network: canopen.Network, priority: int = RECEIVE_PRIORITY) -> None:
+    """Raise the priority of the thread(s) python-can's notifier reads ``network``'s bus with."""
+    for reader in getattr(network.notifier, "_readers", []):
+        if isinstance(reader, threading.Thread):
+            raise_priority(reader, priority)
+
+
+def _sdo_reason(exc: Exception) -> str:
+    if isinstance(exc, SdoAbortedError):
+        return f"SDO abort 0x{exc.code:08X} ({exc})"
+    if isinstance(exc, SdoError) and "response" in str(exc).lower():
+        return f"SDO timeout, no answer after {SDO_ATTEMPTS} attempts ({exc})"
+    return str(exc)
 
 
 def emcy_name(code: int) -> str:
@@ -267,13 +316,18 @@ class Cia402Network:
         self.network = canopen.Network(bus)
         self.network.NOTIFIER_CYCLE = 0.1  # how long closing waits for the receive thread
         self.network.connect()
+        raise_receive_priority(self.network)
         self.axes: dict[str, Cia402Axis] = {}
         self.sim_drives: list[Any] = []  # drives started for it by a DriveStarter (simulated twins)
-        self._heartbeat_task: Any = None
-        self._sync_running = False
+        self.syncs = 0  # SYNC frames sent
+        self.bus_error: str | None = None  # why the bus failed, once it has
+        self._heartbeat_on = self._sync_on = False
+        self._stream: tuple[Callable[[float], Mapping[str, float]], int] | None = None  # (motion.at, first SYNC)
         self._stop = threading.Event()
+        self._producer: threading.Thread | None = None
         self._watchdog = threading.Thread(target=self._watch, name="cia402-watchdog", daemon=True)
         self._watchdog.start()
+        raise_priority(self._watchdog, WATCHDOG_PRIORITY)
 
     def add_axis(self, drive: DriveSettings, timeout: float = 5.0) -> Cia402Axis:
         """Configure drive ``drive`` over SDO, start it (NMT OPERATIONAL) and return its axis."""
@@ -285,18 +339,29 @@ class Cia402Network:
 
     def start(self) -> None:
         """Start the master heartbeat and the SYNC producer (once all axes are configured)."""
-        if self._heartbeat_task is None:
-            self._heartbeat_task = self.network.send_periodic(
-                0x700 + self.settings.master_node_id, [0x05], self.settings.heartbeat)
-        if not self._sync_running:
-            self.network.sync.start(self.settings.cycle)
-            self._sync_running = True
+        self._heartbeat_on = self._sync_on = True
+        if self._producer is None:
+            self._producer = threading.Thread(target=self._produce, name="cia402-sync", daemon=True)
+            self._producer.start()
+            raise_priority(self._producer, PRODUCER_PRIORITY)
 
     def stop_master_heartbeat(self) -> None:
         """Stop sending the master's heartbeat (the drives will then quick-stop): for tests and shutdown."""
-        if self._heartbeat_task is not None:
-            self._heartbeat_task.stop()
-            self._heartbeat_task = None
+        self._heartbeat_on = False
+
+    def stream(self, setpoints: Callable[[float], Mapping[str, float]] | None) -> None:
+        """Send ``setpoints(t)`` (axis name -> m or rad) before every SYNC from now on, ``t`` counted in
+        SYNC cycles from this call (s); None stops it, the targets stay where they are.
+
+        The set-points of a motion are computed in the SYNC thread, so a busy controller thread (a
+        measurement, a loaded CPU) never makes a drive's target stop and then jump. A fault on any
+        axis ends the stream at once.
+        """
+        self._stream = None if setpoints is None else (setpoints, self.syncs)
+
+    def stop_sync(self) -> None:
+        """Stop sending SYNC (and with it the cyclic RPDOs): for tests and shutdown."""
+        self._sync_on = False
 
     def close(self) -> None:
         """Disable every axis, stop SYNC and heartbeat, release the bus and simulated drives.
@@ -304,25 +369,75 @@ class Cia402Network:
         The drives stop watching the master's heartbeat first, so an orderly shutdown leaves them
         disabled rather than faulted.
         """
-        self._stop.set()
         for axis in self.axes.values():
             axis.close()
-        self.network.sync.stop()
-        self._sync_running = False
-        self.stop_master_heartbeat()
+        self._stop.set()
+        if self._producer is not None:
+            self._producer.join(timeout=1.0)
         self._watchdog.join(timeout=1.0)
         self.network.disconnect()
         for drive in self.sim_drives:
             drive.close()
 
+    def _produce(self) -> None:
+        # SYNC, the cyclic RPDOs and the master heartbeat from one thread of raised priority, on
+        # absolute deadlines: a late cycle is skipped, never sent twice in a burst (the drives would
+        # take two steps at once). It counts the SYNCs, so each axis knows how many feedback PDOs it
+        # should have had; python-can's cyclic tasks give neither the count nor the priority.
+        cycle, heartbeat = self.settings.cycle, self.settings.heartbeat
+        next_sync = next_heartbeat = time.monotonic()
+        while not self._stop.is_set():
+            now = time.monotonic()
+            try:
+                if self._heartbeat_on and now >= next_heartbeat:
+                    self.network.send_message(0x700 + self.settings.master_node_id, [0x05])
+                    next_heartbeat = max(next_heartbeat + heartbeat, now)
+                if self._sync_on and now >= next_sync:
+                    self._stream_setpoints()
+                    for axis in list(self.axes.values()):
+                        axis._before_sync()
+                    self.network.send_message(0x80, b"")
+                    self.syncs += 1
+                    for axis in list(self.axes.values()):
+                        axis._after_sync()
+                    next_sync = max(next_sync + cycle, now)
+            except can.CanError as exc:
+                self._bus_failed(exc)
+                return
+            self._stop.wait(max(0.0, min(next_sync, next_heartbeat) - time.monotonic()))
+
+    def _stream_setpoints(self) -> None:
+        stream = self._stream
+        if stream is None:
+            return
+        setpoints, first = stream
+        try:
+            for name, value in setpoints((self.syncs - first) * self.settings.cycle).items():
+                self.axes[name].send_setpoint(value)
+        except DriveFault as exc:  # out of limits, or the axis is in fault: stop every axis' stream
+            self._stream = None
+            logger.warning("set-point stream stopped: %s", exc)
+
+    def _bus_failed(self, exc: Exception) -> None:
+        """The bus cannot send any more (adapter unplugged, bus-off): every axis is in fault."""
+        if self.bus_error is None:
+            self.bus_error = f"CAN bus gone ({exc})"
+            logger.error("%s: no SYNC, no heartbeat, no set-point can be sent", self.bus_error)
+        for axis in list(self.axes.values()):
+            axis._raise_fault(self.bus_error)
+
     def _watch(self) -> None:
         # canopen gives the master no heartbeat-timeout callback: poll every quarter heartbeat
-        # period, so a silent drive is reported within 2.5 + 0.25 periods (< 3).
+        # period, so a silent drive is reported within 2.5 + 0.25 periods (< 3). Time this thread
+        # was not scheduled (the process stalled: a loaded CPU, a long call holding the GIL) is the
+        # master's silence, not the drive's: it is not counted against the drive.
         period = min(self.settings.heartbeat / 4, 0.05)
+        last = time.monotonic()
         while not self._stop.wait(period):
             now = time.monotonic()
+            stalled, last = max(0.0, now - last - 2 * period), now
             for axis in list(self.axes.values()):
-                axis._check_alive(now)
+                axis._check_alive(now, stalled)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -342,6 +457,11 @@ class Cia402Axis(Axis):
         self._last_tpdo: float | None = None
         self._supervised = False
         self._pp_pending = False
+        self._first_sync: int | None = None  # the SYNC the first TPDO1 answered
+        self._tpdos = 0  # TPDO1s received since
+        self._deficits: collections.deque[tuple[int, int]] = collections.deque(maxlen=FEEDBACK_WINDOW + 1)
+        self._rejected = 0  # feedback PDOs of the wrong length
+        self._silent = False  # the drive stopped answering: no orderly shutdown over SDO
         self._rpdo_lock = threading.Lock()  # RPDO1 is written by the caller and by the TPDO callback (PP)
         self._feedback_changed = threading.Condition()
         od = load_object_dictionary(drive.eds, drive.node_id)
@@ -349,10 +469,14 @@ class Cia402Axis(Axis):
         net.network.add_node(self.node)
         self.node.nmt.add_heartbeat_callback(self._on_heartbeat)
         self.node.emcy.add_callback(self._on_emcy)
+        self._step = "start-up"
         try:
             self._configure(timeout)
         except (SdoError, NmtError) as exc:
-            raise DriveFault(f"axis {self.name} (node {drive.node_id}): start-up failed: {exc}") from exc
+            raise DriveFault(f"axis {self.name} (node {drive.node_id}): start-up failed at {self._step}: "
+                             f"{_sdo_reason(exc)}") from exc
+        except can.CanError as exc:
+            raise DriveFault(f"axis {self.name} (node {drive.node_id}): start-up failed, CAN bus gone ({exc})") from exc
         self._supervised = True
 
     # -- start-up (SDO, PRE-OPERATIONAL) -----------------------------------------------------------
@@ -360,17 +484,26 @@ class Cia402Axis(Axis):
         node, settings = self.node, self._net.settings
         node.nmt.state = "PRE-OPERATIONAL"
         node.sdo.RESPONSE_TIMEOUT = max(0.3, min(timeout, 1.0))
+        node.sdo.MAX_RETRIES = SDO_ATTEMPTS  # a lost SDO answer is asked again; canopen logs each retry
+        self._step = "reading 0x1000 (device type)"
         device_type = node.sdo[0x1000].raw
         if device_type & 0xFFFF != 402:
             logger.warning("node %d: device type 0x%08X is not a CiA 402 drive", node.id, device_type)
+        self._step = "writing 0x1017 (producer heartbeat)"
         node.sdo[0x1017].raw = round(settings.heartbeat * 1000)
+        self._step = "waiting for its heartbeat"
         node.nmt.wait_for_heartbeat(timeout)
         self._write_optional(0x1016, 1, settings.master_node_id << 16 | round(3 * settings.heartbeat * 1000))
         self._write_optional(0x1006, 0, round(settings.cycle * 1e6))
+        self._step = "mapping the PDOs"
         self._map_pdos()
         self._write_drive_limits()
+        self._step = f"setting the mode of operation (0x6060 = {MODES[self.drive.mode]})"
         self._set_mode(MODES[self.drive.mode], timeout)
+        for pdo in (node.tpdo[1], node.tpdo[2]):
+            pdo.callbacks.insert(0, self._check_length)  # before BaseNode402 decodes it
         node.tpdo[1].add_callback(self._on_tpdo)
+        self._step = "NMT OPERATIONAL"
         node.nmt.state = "OPERATIONAL"
         self._last_tpdo = None
 
@@ -391,6 +524,7 @@ class Cia402Axis(Axis):
             logger.warning("axis %s: 0x%04X:%d = %d outside the EDS range [%d, %d]; clamped",
                            self.name, index, subindex, value, low, high)
         variable = self.node.sdo[index] if is_variable else self.node.sdo[index][subindex]
+        self._step = f"writing 0x{index:04X}:{subindex}"
         variable.raw = int(min(max(value, low), high))
 
     def _read_optional(self, index: int) -> int | None:
@@ -474,6 +608,9 @@ class Cia402Axis(Axis):
         for state in path[current]:
             self._transition(State402.CW_COMMANDS_CODE[state], state, timeout)
         self._fault = None
+        self._silent = False
+        self._first_sync, self._tpdos = None, 0
+        self._deficits.clear()
 
     def _disable(self) -> None:
         self._controlword(State402.CW_DISABLE_VOLTAGE)
@@ -500,9 +637,7 @@ class Cia402Axis(Axis):
             # acknowledges (statusword bit 12), then _on_tpdo drops it; bit 5 = change immediately
             self._pp_pending = True
             self._controlword(State402.CW_OPERATION_ENABLED | 0x0030)
-        else:
-            with self._rpdo_lock:
-                self.node.rpdo[1].transmit()
+        # CSP: the network sends RPDO1 with this target just before the next SYNC
 
     def _feedback(self) -> AxisFeedback:
         values = self.node.tpdo_values
@@ -522,16 +657,15 @@ class Cia402Axis(Axis):
         return self._feedback()
 
     def _close(self) -> None:
-        silent = self._fault is not None and "heartbeat lost" in self._fault
         self._supervised = False
-        if silent:
+        if self._silent or self._net.bus_error:
             return
         try:
             self._disable()
             for _ in range(2):  # the drive applies it at the next SYNC; its TPDO after that confirms
                 self.node.tpdo[1].wait_for_reception(5 * self._net.settings.cycle)
             self._write_optional(0x1016, 1, 0)
-        except (can.CanError, SdoError) as exc:
+        except (can.CanError, SdoError, DriveFault) as exc:
             logger.warning("axis %s: orderly shutdown incomplete: %s", self.name, exc)
 
     # -- helpers -----------------------------------------------------------------------------------
@@ -540,10 +674,15 @@ class Cia402Axis(Axis):
             self.node.rpdo[1][0x607A].raw = int(counts)
 
     def _controlword(self, value: int) -> None:
-        # the controlword shares RPDO1 with the target; the drive applies it at the next SYNC
-        with self._rpdo_lock:
-            self.node.rpdo[1][0x6040].raw = value
-            self.node.rpdo[1].transmit()
+        # the controlword shares RPDO1 with the target; the drive applies it at the next SYNC. Sent
+        # now, and again before every SYNC (_before_sync), so a lost frame costs one cycle
+        try:
+            with self._rpdo_lock:
+                self.node.rpdo[1][0x6040].raw = value
+                self.node.rpdo[1].transmit()
+        except can.CanError as exc:
+            self._net._bus_failed(exc)
+            raise DriveFault(f"axis {self.name}: CAN bus gone, controlword 0x{value:04X} not sent ({exc})") from exc
 
     def _transition(self, controlword: int, state: str, timeout: float) -> None:
         self._controlword(controlword)
@@ -558,12 +697,59 @@ class Cia402Axis(Axis):
             raise DriveFault(f"axis {self.name}: no statusword from node {self.node.id} within {timeout} s")
         return self.node.statusword
 
+    # -- from the network's SYNC thread ---------------------------------------------------------------
+    def _before_sync(self) -> None:
+        if self._supervised:  # RPDO1 every cycle, as CSP masters do: the latest target and controlword
+            with self._rpdo_lock:
+                self.node.rpdo[1].transmit()
+
+    def _after_sync(self) -> None:
+        # Each SYNC is answered by one TPDO1. An answer may come late (a loaded machine, a busy bus):
+        # only SYNCs older than FEEDBACK_GRACE cycles are expected to be answered. The deficit
+        # (expected - received) grows by one per lost frame and never shrinks back.
+        if not self._supervised or self._fault is not None or self._first_sync is None:
+            return
+        if self._net._stream is None:
+            # at rest the heartbeat watchdog supervises the drive: a CPU-bound controller thread
+            # (measuring; rendering in the simulated world) may delay feedback, not lose it
+            self._deficits.clear()
+            return
+        expected = self._net.syncs - FEEDBACK_GRACE - self._first_sync
+        self._deficits.append((expected - self._tpdos, self._tpdos))
+        (first_deficit, first_count), (deficit, count) = self._deficits[0], self._deficits[-1]
+        missing = deficit - first_deficit
+        if missing <= FEEDBACK_MISSING:
+            return
+        rejected = f", {self._rejected} rejected for their length" if self._rejected else ""
+        silent_since = self._deficits[-missing][1] if missing < len(self._deficits) else first_count
+        if silent_since == count:  # one run of silence, not scattered losses
+            self._silent = True
+            age = time.monotonic() - (self._last_heartbeat or math.nan)
+            self._raise_fault(f"feedback lost: no TPDO for {missing + FEEDBACK_GRACE} SYNC cycles, last heartbeat "
+                              f"{age * 1e3:.0f} ms ago (the drive silent or the bus interrupted){rejected}")
+        else:
+            self._raise_fault(f"CAN frames lost: {missing} of the last {len(self._deficits) - 1} SYNCs got no "
+                              f"feedback PDO{rejected}")
+
     # -- callbacks (from the CAN notifier thread: never block, never SDO) -----------------------
     def _on_heartbeat(self, state: int) -> None:
         self._last_heartbeat = time.monotonic()
+        if state == 0 and self._supervised and self._fault is None:
+            self._raise_fault("drive rebooted (boot-up message): its configuration and power state are lost")
+
+    def _check_length(self, pdo: Any) -> None:
+        expected = sum(variable.length for variable in pdo.map) // 8
+        if len(pdo.data) != expected:
+            self._rejected += 1
+            # raising stops canopen's callbacks: no value of this frame reaches the feedback
+            raise ValueError(f"axis {self.name}: TPDO 0x{pdo.cob_id:X} has {len(pdo.data)} bytes, its mapping "
+                             f"{expected}: rejected")
 
     def _on_tpdo(self, pdo: Any) -> None:
         self._last_tpdo = time.monotonic()
+        if self._first_sync is None:
+            self._first_sync = self._net.syncs
+        self._tpdos += 1
         if self._pp_pending and self.node.tpdo_values.get(0x6041, 0) & 0x1000:
             self._pp_pending = False
             self._controlword(State402.CW_OPERATION_ENABLED)
@@ -575,18 +761,24 @@ class Cia402Axis(Axis):
             return  # error reset
         self._raise_fault(f"EMCY 0x{emcy.code:04X} {emcy_name(emcy.code)}")
 
-    def _check_alive(self, now: float) -> None:
+    def _check_alive(self, now: float, stalled: float = 0.0) -> None:
         if not self._supervised or self._fault is not None:
             return
+        if stalled and self._last_heartbeat is not None:
+            self._last_heartbeat += stalled
+        if stalled and self._last_tpdo is not None:
+            self._last_tpdo += stalled
         heartbeat = self._net.settings.heartbeat
         if self._last_heartbeat is not None and now - self._last_heartbeat > 2.5 * heartbeat:
+            self._silent = True
             self._raise_fault(f"heartbeat lost (silent for {now - self._last_heartbeat:.3f} s)")
             return
         tpdo_timeout = max(10 * self._net.settings.cycle, 2.5 * heartbeat)
-        if self._last_tpdo is not None and now - self._last_tpdo > tpdo_timeout:
+        if self._net._stream is not None and self._last_tpdo is not None and now - self._last_tpdo > tpdo_timeout:
             self._raise_fault(f"TPDO feedback lost (none for {now - self._last_tpdo:.3f} s)")
 
     def _raise_fault(self, reason: str) -> None:
+        self._net._stream = None  # no further set-point for any axis; the controller quick-stops them
         self._fault = reason
         fault = DriveFault(f"axis {self.name} (node {self.node.id}): {reason}")
         logger.warning("%s", fault)
@@ -616,12 +808,14 @@ def axes_from_config(
     base_dir: Path | None = None,
     timeout: float = 5.0,
     start_drives: DriveStarter | None = None,
+    bus_wrapper: Callable[[can.BusABC], can.BusABC] | None = None,
 ) -> tuple[Cia402Network, dict[str, Axis]]:
     """Open the bus, configure the drives of the ``drives`` section and return the network and its axes.
 
     ``start_drives`` (the configuration's ``plugins.drives``; the default config names
     ``drivers.sim.drive:start_simulated_drives``) starts the drives first; a truck's drives are
     powered on their own and need none. The network closes what it started.
+    ``bus_wrapper`` wraps the master's connection (e.g. :class:`drivers.lossy_bus.LossyBus`).
     """
     if not isinstance(drives_mapping, Mapping):
         raise ConfigError(f"{where} drives: expected a mapping, got {type(drives_mapping).__name__}")
@@ -636,7 +830,8 @@ def axes_from_config(
     if len(set(ids)) != len(ids):
         raise ConfigError(f"{where} drives: node ids must be unique (master included), got {ids}")
     sim_drives = start_drives(drives, bus_mapping, settings, where) if start_drives is not None else []
-    net = Cia402Network(open_bus(bus_mapping, f"{where} bus"), settings)
+    bus = open_bus(bus_mapping, f"{where} bus")
+    net = Cia402Network(bus if bus_wrapper is None else bus_wrapper(bus), settings)
     net.sim_drives = sim_drives
     try:
         for drive in drives:

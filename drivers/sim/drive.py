@@ -45,7 +45,14 @@ import canopen
 
 from agf.errors import ConfigError
 from drivers.can_bus import open_bus
-from drivers.cia402_axis import DEFAULT_EDS, DriveSettings, NetworkSettings, load_object_dictionary
+from drivers.cia402_axis import (
+    DEFAULT_EDS,
+    DriveSettings,
+    NetworkSettings,
+    load_object_dictionary,
+    raise_priority,
+    raise_receive_priority,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -62,6 +69,11 @@ STATUSWORDS = {
 }
 POWERED = ("OPERATION ENABLED", "QUICK STOP ACTIVE", "FAULT REACTION ACTIVE")
 FOLLOWING_ERROR, LIMIT_SWITCH, MASTER_HEARTBEAT, INJECTED = 0x8611, 0x8612, 0x8130, 0xFF00
+PDO_LENGTH = 0x8210  # CiA 301: PDO not processed due to length error
+# A simulated drive stands in for a microcontroller of its own: its threads get a real-time priority
+# where the OS allows it, so that load on the test bed's cores does not starve them (a property of
+# the test bed, not of the truck). Below the master's (30).
+DRIVE_PRIORITY = 25
 
 _DEFAULTS = {  # used when the object dictionary in use has no such object (counts, counts/s, ...)
     0x6065: 5_000, 0x607F: 100_000, 0x6081: 50_000, 0x6083: 100_000,
@@ -119,11 +131,14 @@ class SimDrive:
         self._pending: dict[int, bytes] = {}
         self._last_sent: dict[int, bytes] = {}
         self._pdo_dirty = True
+        self._sdo_faults: dict[int, tuple[str, int]] = {}  # index -> (timeout | abort, how many more times)
         self._stop = threading.Event()
         self.node.add_read_callback(self._on_read)
         self.node.add_write_callback(self._on_write)
         self.network.subscribe(0x80, self._on_sync)
         self.network.subscribe(0, self._on_nmt)
+        self.network.unsubscribe(self.node.sdo.rx_cobid, self.node.sdo.on_request)
+        self.network.subscribe(self.node.sdo.rx_cobid, self._on_sdo_request)
         if 0x1006 in self.node.object_dictionary:  # our cycle until a master writes its own
             self.node.data_store[0x1006] = {0: struct.pack("<I", round(cycle * 1e6))}
         self.mode = self._param(0x6060, 0, 0) if self._param(0x6060, 0, 0) in (1, 8) else 0
@@ -139,10 +154,21 @@ class SimDrive:
     def start(self) -> None:
         """Connect to the bus and boot: boot-up message, PRE-OPERATIONAL, heartbeat from 0x1017."""
         self.network.connect()
+        raise_receive_priority(self.network, DRIVE_PRIORITY)
+        self._boot()
+        self._supervisor.start()
+        raise_priority(self._supervisor, DRIVE_PRIORITY)
+
+    def _boot(self) -> None:
         self._configure_master_heartbeat(self._param(0x1016, 1, 0))
         self.node.nmt.send_command(0x81)  # INITIALISING: boot-up message
         self.node.nmt.send_command(0x80)  # PRE-OPERATIONAL: starts the heartbeat producer
-        self._supervisor.start()
+        self._raise_heartbeat_priority()
+
+    def _raise_heartbeat_priority(self) -> None:
+        task = getattr(getattr(self.node.nmt, "_send_task", None), "_task", None)  # python-can's cyclic task
+        if isinstance(getattr(task, "thread", None), threading.Thread):
+            raise_priority(task.thread, DRIVE_PRIORITY)
 
     def close(self) -> None:
         """Stop everything and release the bus."""
@@ -171,6 +197,46 @@ class SimDrive:
     def go_silent(self) -> None:
         """Lose the CAN connection (power cut): no heartbeat, no PDO, no SDO from now on."""
         self.close()
+
+    def emcy(self, code: int) -> None:
+        """Send an EMCY with error code ``code`` and stay in the present state (a warning, e.g. 0x4210)."""
+        self.node.emcy.send(code, 0x01, b"\0" * 5)
+
+    def reboot(self) -> None:
+        """Reset of the drive's electronics: the motor stops where it is (brake), the object dictionary
+        returns to its defaults (PDO mapping, heartbeat, mode, limits), boot-up message, PRE-OPERATIONAL."""
+        self.node.nmt.stop_heartbeat()
+        with self._lock:
+            self.state, self.velocity, self.error_code = "SWITCH ON DISABLED", 0.0, 0
+            self._setpoint, self._controlword, self._pp_goal, self._pp_velocity = self.position, 0, None, 0.0
+            self.node.data_store.clear()
+            if 0x1006 in self.node.object_dictionary:
+                self.node.data_store[0x1006] = {0: struct.pack("<I", round(self._cycle * 1e6))}
+            self.mode = self._param(0x6060, 0, 0) if self._param(0x6060, 0, 0) in (1, 8) else 0
+            for cob_id in self._rpdos:
+                self.network.unsubscribe(cob_id, self._on_rpdo)
+            self._rpdos, self._tpdos, self._pending, self._pdo_dirty = {}, [], {}, True
+        logger.info("node %d: reboot", self.node.id)
+        self._boot()
+
+    def fail_sdo(self, index: int, kind: str = "timeout", times: int = 1) -> None:
+        """The next ``times`` SDO requests on object ``index`` get no answer (``timeout``) or an abort."""
+        if kind not in ("timeout", "abort"):
+            raise ValueError(f"kind must be timeout or abort, got {kind!r}")
+        with self._lock:
+            self._sdo_faults[index] = (kind, times)
+
+    def _on_sdo_request(self, can_id: int, data: bytes, timestamp: float) -> None:
+        command = data[0] >> 5 if data else 0
+        index = struct.unpack_from("<H", data, 1)[0] if command in (1, 2) and len(data) >= 4 else None
+        with self._lock:
+            kind, times = self._sdo_faults.get(index, ("", 0))
+            if times:
+                self._sdo_faults[index] = (kind, times - 1)
+        if not times:
+            self.node.sdo.on_request(can_id, data, timestamp)
+        elif kind == "abort":  # 0x08000020: data cannot be transferred or stored to the application
+            self.network.send_message(self.node.sdo.tx_cobid, struct.pack("<BHBI", 0x80, index, data[3], 0x08000020))
 
     # -- object dictionary -------------------------------------------------------------------------
     def _param(self, index: int, subindex: int = 0, default: int | None = None) -> int:
@@ -211,6 +277,8 @@ class SimDrive:
             self._target = value
         elif index == 0x1016 and subindex == 1:
             self._configure_master_heartbeat(value)
+        elif index == 0x1017:  # canopen's NmtSlave has just (re)started the heartbeat producer
+            self._raise_heartbeat_priority()
         elif index == 0x2000:
             self._load_percent = float(value)
         elif index == 0x2001 and value:
@@ -261,6 +329,12 @@ class SimDrive:
             self._apply_rpdo(can_id, bytes(data))
 
     def _apply_rpdo(self, can_id: int, data: bytes) -> None:
+        expected = sum(size for _, _, size in self._rpdos[can_id][1])
+        if len(data) != expected:  # CiA 301: not processed, EMCY 0x8210
+            logger.warning("node %d: RPDO 0x%X with %d bytes, mapping %d: not processed", self.node.id, can_id,
+                           len(data), expected)
+            self.node.emcy.send(PDO_LENGTH, 0x11, b"\0" * 5)
+            return
         fields, offset = [], 0
         for index, subindex, size in self._rpdos[can_id][1]:
             if index > 7:  # dummy entries (index 1..7) only take room
@@ -310,8 +384,14 @@ class SimDrive:
         self._master_seen = time.monotonic()
 
     def _supervise(self) -> None:
+        last = time.monotonic()
         while not self._stop.wait(0.005):
             now = time.monotonic()
+            # time this thread was not scheduled (the test bed's CPU busy, the GIL held) is not the
+            # master's silence: a drive's own microcontroller is never starved like that
+            stalled, last = max(0.0, now - last - 0.02), now
+            if stalled and self._master_seen is not None:
+                self._master_seen += stalled
             seen, timeout = self._master_seen, self._master_timeout
             if seen is not None and timeout and now - seen > timeout:
                 self._master_seen = None
@@ -340,6 +420,8 @@ class SimDrive:
     def _power_transition(self, word: int) -> None:
         state = self.state
         command = _command(word)
+        if state == "QUICK STOP ACTIVE" and command == "quick stop":
+            return  # the same command again (a master repeats it every cycle): stay
         if command == "disable voltage" or (command == "quick stop" and state != "OPERATION ENABLED"):
             if state not in ("FAULT REACTION ACTIVE", "NOT READY TO SWITCH ON"):
                 self.state = "SWITCH ON DISABLED"

@@ -74,7 +74,7 @@ class RenderedCamera(FrameSource):
 class SimulatedWorld:
     """Drives, pallet and camera of one simulated pick; a context manager that closes the bus."""
 
-    def __init__(self, config: Config, scene: Scene) -> None:
+    def __init__(self, config: Config, scene: Scene, bus_wrapper: Any = None) -> None:
         if scene.pallet is None:
             raise ConfigError("a pick scene needs a 'pallet' (a calibration scene cannot be picked)")
         self.config, self.scene = config, scene
@@ -84,6 +84,7 @@ class SimulatedWorld:
         self.network, self.axes = axes_from_config(
             config.sections["drives"], config.sections["bus"], f"{config.source}:", base_dir=config.source.parent,
             start_drives=drive_starter(config),
+            bus_wrapper=bus_wrapper,  # the fault tests put drivers.lossy_bus between master and drives
         )
         self.frames_lost = 0
         self.min_clearance = math.inf
@@ -111,7 +112,11 @@ class SimulatedWorld:
         return {name: axis.feedback().position for name, axis in self.axes.items()}
 
     def scene_now(self) -> Scene:
-        fork_in_truck = fork_in_truck_from_axes(self.positions(), self.mast)
+        return self.scene_at(self.positions())
+
+    def scene_at(self, positions: dict[str, float]) -> Scene:
+        """The scene as the camera sees it with the axes at ``positions`` (m, rad)."""
+        fork_in_truck = fork_in_truck_from_axes(positions, self.mast)
         placement = PalletPlacement(self.scene.pallet.type, fork_in_truck.inverse() @ self.pallet_in_truck)
         return dataclasses.replace(self.scene, pallet=placement)
 
@@ -135,11 +140,11 @@ class SimulatedWorld:
             axis.enable()
         now = self.positions()
         motion = plan_move(now, target, {n: a.limits for n, a in self.axes.items()})
-        start = time.monotonic()
-        while (t := time.monotonic() - start) < motion.duration + 0.3:
-            for name, value in motion.at(t).items():
-                self.axes[name].send_setpoint(value)
+        self.network.stream(lambda t: motion.at(min(t, motion.duration)))  # from the SYNC thread
+        deadline = time.monotonic() + 10 * motion.duration + 5.0  # SYNC time runs behind on a loaded CPU
+        while time.monotonic() < deadline and any(abs(p - target[n]) > 1e-4 for n, p in self.positions().items()):
             next(iter(self.axes.values())).wait_for_feedback(timeout=0.2)
+        self.network.stream(None)
 
     def controller(self, progress=None, recorder: Recorder | None = None) -> PickController:
         calibration = load_calibration(self.config.vision.calibration)
@@ -164,6 +169,7 @@ class SimulatedWorld:
             on_cycle=self.on_cycle,
             progress=progress,
             recorder=recorder,
+            streamer=self.network,
         )
 
 
