@@ -44,8 +44,10 @@ class IdealAxis(Axis):
 
 
 class BlankCamera(FrameSource):
+    """A plain grey frame: neither black nor saturated, so the frame checks pass it on."""
+
     def _read(self, timeout: float) -> np.ndarray:
-        return np.zeros((4, 4), np.uint8)
+        return np.full((4, 4), 128, np.uint8)
 
 
 class LiftBy:
