@@ -1,0 +1,41 @@
+"""Wrong accepts found on the project's randomised renders and not fixed yet (agf bench accuracy.randomised).
+
+Each is a strict xfail: it fails today because the measurement is accepted outside the bounds, and the
+marker must go (strict: an unexpected pass fails the suite) once the vision refuses it or measures it
+right. The scene files say where each came from.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from agf.camera import load_camera
+from agf.config import load_config
+from agf.errors import MeasurementError
+from agf.pallets import load_pallets
+from agf.paths import DEFAULT_CONFIG
+from agf.scene import load_scene
+from agf.vision.accuracy import pose_errors, within_bounds
+from agf.vision.measure import measure_pallet
+from tests.integration.conftest import SCENES
+
+CONFIG = load_config(DEFAULT_CONFIG)
+OPEN = sorted((SCENES / "open-wrong-accepts").glob("*.yaml"))
+
+
+@pytest.mark.xfail(strict=True, reason="load-edge pitch 0.2-0.6 deg off under random looks: open, see issue 17 note")
+@pytest.mark.parametrize("path", OPEN, ids=[p.stem for p in OPEN])
+def test_randomised_scene_is_refused_or_within_bounds(path):
+    from drivers.sim.fast_render import render_fast
+
+    scene = load_scene(path)
+    image, _ = render_fast(scene)
+    pallet = load_pallets(CONFIG.vision.pallets)[scene.pallet.type]
+    try:
+        detail = measure_pallet(
+            image, load_camera(scene.camera), scene.camera_in_fork, pallet, CONFIG.vision.search, forks=CONFIG.forks
+        )
+    except MeasurementError:
+        return
+    errors = pose_errors(detail.measurement.pallet_in_fork, scene.pallet.in_fork)
+    assert within_bounds(errors) and detail.measurement.loaded == scene.loaded, errors
