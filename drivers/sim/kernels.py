@@ -191,7 +191,7 @@ def shade_look(origins, directions, distance, normals, local, index, kind, R, c,
             r1 = abs(local[i, 1]) / max(half[k, 1], 1e-9)
             r2 = abs(local[i, 2]) / max(half[k, 2], 1e-9)
             axis = 0 if r0 >= r1 and r0 >= r2 else (1 if r1 >= r2 else 2)
-        b, g, r = texel(style[k], local[i, 0], local[i, 1], local[i, 2], half[k, 0], half[k, 1], half[k, 2], axis)
+        b, g, r = texel(style, k, local[i, 0], local[i, 1], local[i, 2], half[k, 0], half[k, 1], half[k, 2], axis)
         t = distance[i]
         px = origins[i, 0] + t * directions[i, 0]
         py = origins[i, 1] + t * directions[i, 1]
@@ -209,10 +209,10 @@ def shade_look(origins, directions, distance, normals, local, index, kind, R, c,
         out[i, 2] = 255.0 * r * er * occlusion
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _light(n, px, py, pz, nx, ny, nz, lights, grids, starts, objs, kind, R, c, half):  # pragma: no cover
     """Irradiance light ``n`` gives a point with a normal (see :func:`shade_look`)."""
-    L = lights[n]
+    L = lights[n]  # a view; this function is inlined (array arguments cost reference counting per call)
     if L[0] == 0.0:
         wx, wy, wz, reach, falloff = L[5], L[6], L[7], math.inf, 1.0
     else:

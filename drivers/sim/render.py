@@ -6,6 +6,11 @@ against boxes and planes (:mod:`drivers.sim.raycast`). Shading: diffuse light fr
 ambient term, darkened inside pallet pockets (ambient occlusion: pockets are dark holes),
 procedural wood grain, cardboard with tape seams, concrete, vignetting; then blur, sensor noise and
 JPEG. Everything random comes from the scene's seed, so a scene renders bit-identically.
+
+A scene with ``look: random`` gets a look drawn from its seed instead (:mod:`drivers.sim.looks`):
+textures, lights with hard shadows, rack and clutter, sensor; shaded by compiled code
+(:mod:`drivers.sim.kernels`) that the campaign renderer (:mod:`drivers.sim.fast_render`) shares. This
+module is the reference that renderer is checked against.
 """
 
 from __future__ import annotations

@@ -44,23 +44,6 @@ class Style:
         return np.array([KINDS.index(self.kind), *self.colour, self.seed, self.wear, self.detail, 0.0])
 
 
-def reflectance(style: Style, local: Array, half: Array, axis: NDArray) -> Array:
-    """BGR reflectance (N, 3) of ``style`` at object-frame points ``local`` (N, 3, m) on faces ``axis``
-    (N,; 0: x faces, 1: y faces, 2: z faces) of an object of half extents ``half`` (3,, m; zeros for a
-    plane)."""
-    out = np.empty((len(local), 3))
-    _reflectance_many(style.packed(), np.ascontiguousarray(local, float), np.asarray(half, float),
-                      np.ascontiguousarray(axis, np.int64), out)
-    return out
-
-
-@njit(cache=True)
-def _reflectance_many(packed, local, half, axis, out):  # pragma: no cover - compiled
-    for i in range(local.shape[0]):
-        b, g, r = texel(packed, local[i, 0], local[i, 1], local[i, 2], half[0], half[1], half[2], axis[i])
-        out[i, 0], out[i, 1], out[i, 2] = b, g, r
-
-
 @njit(cache=True, inline="always")
 def hash01(ix: float, iy: float, seed: float) -> float:
     """Uniform 0..1 per integer lattice point (32-bit integer hash)."""
@@ -92,22 +75,23 @@ def fbm(u: float, v: float, seed: float, octaves: int) -> float:
     return total / norm
 
 
-@njit(cache=True)
-def texel(p, x, y, z, hx, hy, hz, axis):  # pragma: no cover - compiled
-    """BGR reflectance of style ``p`` (see :meth:`Style.packed`) at (x, y, z) on face ``axis``."""
-    kind, seed, wear, detail = int(p[0]), p[4], p[5], p[6]
+@njit(cache=True, inline="always")
+def texel(styles, k, x, y, z, hx, hy, hz, axis):  # pragma: no cover - compiled
+    """BGR reflectance of style ``styles[k]`` (see :meth:`Style.packed`) at (x, y, z) on face ``axis``."""
+    kind, seed, wear, detail = int(styles[k, 0]), styles[k, 4], styles[k, 5], styles[k, 6]
+    cb, cg, cr = styles[k, 1], styles[k, 2], styles[k, 3]
     sx, sy, sz = x + hx, y + hy, z + hz  # from the object's lower corner
     u = sy if axis == 0 else sx
     v = sy if axis == 2 else sz
     if kind == 1:
-        b, g, r = _carton(p, u, v, seed, detail)
+        b, g, r = _carton(cb, cg, cr, u, v, seed, detail)
     else:
         if kind == 0:
             value = _wood(sx, sy, sz, hx, hy, hz, axis, seed, detail)
         elif kind == 2:
             value = _concrete(u, v, seed)
         elif kind == 3:
-            b, g, r = _epoxy(p, u, v, seed)
+            b, g, r = _epoxy(cb, cg, cr, u, v, seed)
             return _wear(u + 3.1 * axis, v, seed, wear, b, g, r)
         elif kind == 4:
             value = _tiles(u, v, seed)
@@ -124,7 +108,7 @@ def texel(p, x, y, z, hx, hy, hz, axis):  # pragma: no cover - compiled
             value = _steel(u, v, y, axis, seed, wear, detail)
         else:
             value = 1.0
-        b, g, r = p[1] * value, p[2] * value, p[3] * value
+        b, g, r = cb * value, cg * value, cr * value
     return _wear(u + 3.1 * axis, v, seed, wear, b, g, r)
 
 
@@ -171,7 +155,7 @@ def _wood(sx, sy, sz, hx, hy, hz, axis, seed, detail):
 
 
 @njit(cache=True)
-def _carton(p, u, v, seed, detail):
+def _carton(cb, cg, cr, u, v, seed, detail):
     """Stacked cartons: staggered joints, a tape stripe over each carton, some labels, stretch film."""
     width = 0.25 + 0.3 * hash01(seed, 2.0, seed)
     height = 0.2 + 0.25 * hash01(seed, 3.0, seed)
@@ -180,7 +164,7 @@ def _carton(p, u, v, seed, detail):
     col = math.floor(cu / width)
     fu, fv = cu / width - col, v / height - row
     tone = (0.9 + 0.2 * hash01(col, row, seed + 1)) * (0.97 + 0.06 * fbm(u / 0.05, v / 0.05, seed + 2, 2))
-    b, g, r = p[1] * tone, p[2] * tone, p[3] * tone
+    b, g, r = cb * tone, cg * tone, cr * tone
     if abs(fu - 0.5) < 0.03 + 0.02 * hash01(seed, 4.0, seed):
         shine = 0.95 + 0.05 * math.sin(v * 400)
         if int(seed) % 3:
@@ -208,12 +192,12 @@ def _concrete(u, v, seed):
 
 
 @njit(cache=True)
-def _epoxy(p, u, v, seed):
+def _epoxy(cb, cg, cr, u, v, seed):
     """Painted floor with a yellow safety line."""
     if abs((v + 50) % 3.3 - 1.2) < 0.05:
         return 0.1, 0.75, 0.85
     value = 0.95 + 0.08 * fbm(u / 0.8, v / 0.8, seed, 3)
-    return p[1] * value, p[2] * value, p[3] * value
+    return cb * value, cg * value, cr * value
 
 
 @njit(cache=True)
