@@ -203,7 +203,7 @@ def _cycle_plot(results: list[Mapping[str, Any]], path: Path) -> str:
     states = list(dict.fromkeys(s for r in inserted for s in r.get("durations_s", {})))
     if states:
         spread = [[r.get("durations_s", {}).get(s, 0.0) for r in inserted] for s in states]
-        right.boxplot(spread, tick_labels=states, vert=False)
+        right.boxplot(spread, tick_labels=states, orientation="horizontal")
     right.set_xlabel("time in state [s]")
     right.set_title("where the time goes (inserted picks)")
     right.grid(True, alpha=0.4)

@@ -263,7 +263,7 @@ def run_campaign(
                 unit="pick",
                 disable=not progress,
                 dynamic_ncols=True,
-                bar_format="{desc}: {n_fmt}/{total_fmt} picks |{bar}| {postfix} [{elapsed}<{remaining}]",
+                bar_format="{desc}: {n_fmt}/{total_fmt} picks |{bar}| {elapsed}<{remaining}{postfix}",
             )
         )
         inserted = sum(r["ok"] for k, r in done.items() if k in set(indices))
