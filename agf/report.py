@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 
 from agf.errors import InputError
 
@@ -118,8 +119,9 @@ def campaign_figures(results: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
 
 
 def reason_class(reason: str | None) -> str:
-    """A reason with its numbers replaced by ``#``, so refusals of one kind count together."""
-    return re.sub(r"[-+]?\d+(\.\d+)?", "#", reason or "(no reason given)")
+    """A reason with its numbers replaced by ``#``, so refusals of one kind count together (numbers inside
+    words, such as ``0x8130`` or ``cia402``, are part of the kind)."""
+    return re.sub(r"(?<![\w.])[-+]?\d+(\.\d+)?(?!\w)", "#", reason or "(no reason given)")
 
 
 def measurement_errors(results: Iterable[Mapping[str, Any]]) -> list[dict[str, Any]]:
@@ -181,8 +183,12 @@ def _clearance_plot(results: list[Mapping[str, Any]], path: Path) -> str:
     }
     groups = {o: v for o, v in groups.items() if v}
     if groups:
-        ax.hist(list(groups.values()), bins=30, stacked=True, label=list(groups), color=[COLOURS[o] for o in groups])
+        values = np.concatenate([v for v in groups.values()])
+        low, high = math.floor(min(values.min(), 0.0)), math.ceil(values.max()) + 1
+        bins = np.arange(low, high + 1, max(1, math.ceil((high - low) / 200)))  # 1 mm bins up to 200 of them
+        ax.hist(list(groups.values()), bins=bins, stacked=True, label=list(groups), color=[COLOURS[o] for o in groups])
         ax.legend()
+    ax.yaxis.set_major_locator(MaxNLocator(integer=True))
     ax.axvline(0.0, color="red", linestyle="--", linewidth=1.2, label="contact")
     ax.set_xlabel("smallest tine-to-pallet clearance over the pick [mm]")
     ax.set_ylabel("picks")
@@ -198,6 +204,7 @@ def _cycle_plot(results: list[Mapping[str, Any]], path: Path) -> str:
     left.hist([r["cycle_s"] for r in inserted], bins=30, color=COLOURS["inserted"])
     left.set_xlabel("pick cycle [s]")
     left.set_ylabel("inserted picks")
+    left.yaxis.set_major_locator(MaxNLocator(integer=True))
     left.set_title("cycle time of the inserted picks")
     left.grid(True, alpha=0.4)
     states = list(dict.fromkeys(s for r in inserted for s in r.get("durations_s", {})))

@@ -28,7 +28,7 @@ from typing import Any
 
 from tqdm import tqdm
 
-from agf.errors import AgfError, InputError, NotAvailableError
+from agf.errors import AgfError, ConfigError, InputError, NotAvailableError
 from agf.report import CAMPAIGN_FILE, RESULTS_FILE, campaign_figures, read_results
 
 Pick = Callable[[int], dict[str, Any]]
@@ -48,6 +48,8 @@ def run_one(pick: Pick, index: int) -> tuple[int, dict[str, Any]]:
     start = time.monotonic()
     try:
         record = pick(index)
+    except (ConfigError, InputError):  # the user's mistake, the same for every pick: stop and say so
+        raise
     except Exception as exc:  # noqa: BLE001 - recorded with its reason, counted as a fault
         where = traceback.extract_tb(exc.__traceback__)[-1]
         reason = f"the pick crashed: {type(exc).__name__}: {exc} ({Path(where.filename).name}:{where.lineno})"

@@ -22,7 +22,7 @@ import numpy as np
 from agf.camera import load_camera
 from agf.config import Config, load_calibration
 from agf.controller import ControllerConfig, PickController, PickResult
-from agf.errors import ConfigError, MeasurementError
+from agf.errors import ConfigError, DriveFault, MeasurementError
 from agf.frames import Frame, FrameSource
 from agf.geometry import Transform
 from agf.kinematics import MastGeometry, fork_in_truck_from_axes
@@ -89,7 +89,11 @@ class SimulatedWorld:
         self.outlines: list[np.ndarray] = []  # per cycle, the left tine's side outline in frame P
         self.clearances: list[float] = []  # per cycle (m)
         self._parts = pallet_parts(self.pallet)
-        self._move_to(START)
+        try:
+            self._move_to(START)
+        except BaseException:  # no `with` holds the world yet: close its bus, or its drives live on
+            self.network.close()
+            raise
         self.pallet_in_truck = fork_in_truck_from_axes(self.positions(), self.mast) @ scene.pallet.in_fork
 
     def __enter__(self) -> SimulatedWorld:
@@ -216,11 +220,11 @@ def _pick(config: Config, plots: Path | None, base: Scene, seed: int, random: bo
         if plots is not None:
             summary["plots"] = world.plots(result, plots / f"pick-{index:03d}")
         return summary
-    except MeasurementError as exc:
+    except (MeasurementError, DriveFault) as exc:  # the world could not be set up: no pick was tried
         return {
             "ok": False,
-            "outcome": "refused",
-            "reason": str(exc),
+            "outcome": "refused" if isinstance(exc, MeasurementError) else "faulted",
+            "reason": f"setting up the simulated world: {exc}",
             "collision": False,
             "min_clearance_mm": None,
             "scene": scene_summary(scene),
