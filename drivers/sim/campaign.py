@@ -12,6 +12,7 @@ picklable function of its run index alone, so any pick is reproducible without t
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import functools
 import json
@@ -106,7 +107,8 @@ class PoolBackend(CampaignBackend):
 class RayBackend(CampaignBackend):
     """Ray tasks (one CPU each): on the cluster at ``address`` (``auto``, ``HOST:PORT`` or
     ``ray://HOST:10001``), else on a local Ray started for the campaign and shut down after it. The
-    cluster's nodes need this package installed (``pip install 'agf[cluster]'``)."""
+    cluster's nodes need this package, its configs and camera files at the paths this machine uses
+    (the pick carries the loaded config and scene, whose files are named by absolute path)."""
 
     def __init__(self, jobs: int | None = None, address: str | None = None) -> None:
         super().__init__(jobs)
@@ -137,11 +139,11 @@ class RayBackend(CampaignBackend):
         task = self.ray.remote(num_cpus=1)(run_one)
         pick_ref = self.ray.put(pick)
         limit = self.jobs or max(int(self.ray.cluster_resources().get("CPU", 1)), 1)
-        waiting, pending = list(indices), []
+        waiting, pending = collections.deque(indices), []
         try:
             while waiting or pending:
                 while waiting and len(pending) < limit * RAY_IN_FLIGHT_PER_CPU:
-                    pending.append(task.remote(pick_ref, waiting.pop(0)))
+                    pending.append(task.remote(pick_ref, waiting.popleft()))
                 done, pending = self.ray.wait(pending, num_returns=1)
                 yield self.ray.get(done[0])
         finally:
