@@ -212,13 +212,24 @@ def _save_figure(figure: Figure, path: Path) -> str:
 
 
 def _shade_states(ax: Any, t: NDArray, states: list[str]) -> None:
-    """Alternating background bands per controller state, labelled at the top of the panel."""
-    edges = [0] + [i for i in range(1, len(states)) if states[i] != states[i - 1]] + [len(states) - 1]
-    for k, (a, b) in enumerate(zip(edges[:-1], edges[1:], strict=True)):
-        ax.axvspan(t[a], t[b], color="0.92" if k % 2 == 0 else "0.97", zorder=0)
+    """Alternating background bands per controller state, labelled at the top of the panel; a pause
+    without samples between motions (the verify measurement) is its own band, ``no motion``."""
+    pause = np.diff(t) > max(10 * float(np.median(np.diff(t))), 0.2) if len(t) > 1 else np.zeros(0, bool)
+    bands, a = [], 0
+    for i in range(1, len(t)):
+        if pause[i - 1]:
+            bands += [(t[a], t[i - 1], states[a]), (t[i - 1], t[i], "no motion")]
+            a = i
+        elif states[i] != states[a]:
+            bands.append((t[a], t[i], states[a]))
+            a = i
+    bands.append((t[a], t[-1], states[a]))
+    for k, (start, end, label) in enumerate(bands):
+        colour = "white" if label == "no motion" else "0.90" if k % 2 == 0 else "0.96"
+        ax.axvspan(start, end, color=colour, zorder=0)
         ax.annotate(
-            states[a],
-            ((t[a] + t[b]) / 2, 1.0),
+            label,
+            ((start + end) / 2, 1.0),
             xycoords=("data", "axes fraction"),
             ha="center",
             va="bottom",
