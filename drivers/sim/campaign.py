@@ -30,7 +30,7 @@ from typing import Any
 from tqdm import tqdm
 
 from agf.errors import AgfError, ConfigError, InputError, NotAvailableError
-from agf.report import CAMPAIGN_FILE, RESULTS_FILE, campaign_figures, read_results
+from agf.report import CAMPAIGN_FILE, RESULTS_FILE, campaign_figures, read_results, validate_result
 
 Pick = Callable[[int], dict[str, Any]]
 
@@ -202,7 +202,10 @@ def _open_folder(folder: Path, identity: dict[str, Any], resume: bool) -> dict[i
     if resume:
         if not meta.is_file():
             raise InputError(f"--resume: {folder} holds no campaign ({CAMPAIGN_FILE} not found)")
-        recorded = json.loads(meta.read_text())
+        try:
+            recorded = json.loads(meta.read_text())
+        except json.JSONDecodeError as exc:
+            raise InputError(f"--resume: {meta}: not JSON ({exc.msg})") from exc
         differs = {k: (recorded.get(k), v) for k, v in identity.items() if recorded.get(k) != v}
         if differs:
             detail = ", ".join(f"{k}: {a!r} there, {b!r} now" for k, (a, b) in differs.items())
@@ -270,17 +273,18 @@ def run_campaign(
                 bar_format="{desc}: {n_fmt}/{total_fmt} picks |{bar}| {elapsed}<{remaining}{postfix}",
             )
         )
-        inserted = sum(r["ok"] for k, r in done.items() if k in set(indices))
+        wanted = set(indices)
+        inserted = sum(r["ok"] for k, r in done.items() if k in wanted)
         bar.set_postfix_str(f"{inserted} inserted")
         try:
             for index, record in stack.enter_context(contextlib.closing(backend.imap(pick, todo))):
-                results.append(record)
+                results.append(validate_result(record, f"{folder}: the result of run {index}"))
                 done[index] = record
                 inserted += record["ok"]
                 bar.set_postfix_str(f"{inserted} inserted", refresh=False)
                 bar.update()
         except KeyboardInterrupt:
-            kept = sum(k in done for k in indices)
+            kept = sum(k in done for k in wanted)
             raise CampaignInterrupted(
                 f"interrupted by the operator after {kept} of {len(indices)} picks; the results are kept in "
                 f"{folder}: the same command with --resume --out {folder} finishes the campaign"
