@@ -6,6 +6,7 @@ from __future__ import annotations
 import functools
 import json
 import sys
+from types import SimpleNamespace
 
 import pytest
 
@@ -13,7 +14,7 @@ from agf.cli import EXIT_UNAVAILABLE, EXIT_USAGE, main
 from agf.errors import InputError, NotAvailableError
 from agf.report import RESULTS_FILE, read_results
 from drivers.sim.campaign import CampaignInterrupted, PoolBackend, make_backend, run_campaign
-from drivers.sim.world import campaign_scene, scene_summary
+from drivers.sim.world import campaign_scene, pick_outcome, scene_summary
 from tests.unit.campaign_picks import BASE, light_pick
 
 IDENTITY = {"scene": None, "random": 12, "seed": 5}
@@ -115,3 +116,34 @@ def test_ray_gives_the_process_pools_results(tmp_path):
     summary = campaign(tmp_path / "ray", backend=make_backend("ray", jobs=2))
     assert summary["backend"] == "local Ray"
     assert without_wall_time(read_results(tmp_path / "ray")) == without_wall_time(read_results(tmp_path / "pool"))
+
+
+@pytest.mark.parametrize(
+    ("ok", "reason", "refusal", "plan_safe", "clearance", "outcome"),
+    [
+        (True, None, None, True, 0.02, "inserted"),
+        (True, None, None, True, -0.001, "collided"),
+        (
+            False,
+            "measuring: the forks hide 37% of the pocket edges",
+            "the forks hide 37% of the pocket edges",
+            None,
+            float("inf"),
+            "refused",
+        ),
+        (False, "planning: insertion refused: height margin -3 mm", None, False, 0.2, "refused"),
+        (
+            False,
+            "aligning: drive fault on lift: following error",
+            "an earlier refusal, then a viewing pose",
+            True,
+            0.1,
+            "faulted",
+        ),
+        (False, "acquiring: simulated camera: no frame within 60.00 s", None, None, float("inf"), "faulted"),
+    ],
+)
+def test_a_pick_outcome_is_what_ended_it(ok, reason, refusal, plan_safe, clearance, outcome):
+    plan = None if plan_safe is None else SimpleNamespace(safe=plan_safe)
+    result = SimpleNamespace(ok=ok, reason=reason, plan=plan)
+    assert pick_outcome(result, SimpleNamespace(min_clearance=clearance, refusal=refusal)) == outcome
