@@ -40,6 +40,7 @@ OPTIONAL = {
     "truth": list,
     "scene": dict,
     "log": (str, type(None)),
+    "viewing_moves": int,
 }
 COLOURS = {"inserted": "tab:green", "refused": "tab:orange", "faulted": "tab:purple", "collided": "tab:red"}
 
@@ -112,6 +113,7 @@ def campaign_figures(results: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
         "refused": counts["refused"],
         "faulted": counts["faulted"],
         "collisions": sum(r["collision"] for r in results),
+        "viewing_moves": sum(r.get("viewing_moves", 0) for r in results),
         "min_clearance_mm": min(clearances) if clearances else None,
         "median_cycle_s": statistics.median(cycles) if cycles else None,
         "failures": failures,
@@ -260,6 +262,13 @@ def _markdown(folder: Path, meta: Mapping[str, Any], results: list[dict[str, Any
         f"median cycle of the inserted picks: {'-' if cycle is None else f'{cycle:.1f} s'}.",
         "",
     ]
+    if any("viewing_moves" in r for r in results):
+        viewed = sum(r.get("viewing_moves", 0) > 0 for r in results)
+        lines += [
+            f"{viewed} picks needed a viewing move (the forks hid the pallet, so they moved clear of it to measure "
+            f"again), {figures['viewing_moves']} moves in all.",
+            "",
+        ]
     failed = [r for r in results if not r["ok"]]
     for outcome in ("refused", "faulted", "collided"):
         reasons = Counter(reason_class(r.get("reason")) for r in failed if r["outcome"] == outcome)

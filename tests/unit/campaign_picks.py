@@ -40,4 +40,5 @@ def light_pick(seed: int, index: int, interrupt_at: int | None = None) -> dict:
         "measured": [measured] if outcome != "refused" else [],
         "truth": [truth] if outcome != "refused" else [],
         "scene": scene_summary(scene),
+        "viewing_moves": int(truth["z_mm"] < -200),
     }
