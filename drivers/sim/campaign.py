@@ -44,8 +44,8 @@ class CampaignInterrupted(AgfError):
 
 
 def run_one(pick: Pick, index: int) -> tuple[int, dict[str, Any]]:
-    """``pick(index)`` with its run index and wall time; a pick that crashes is recorded as faulted with
-    the exception, so one bug does not lose a night's campaign."""
+    """``pick(index)`` with its run index and wall time (``wall_s``, unless the pick gives its own); a pick
+    that crashes is recorded as faulted with the exception, so one bug does not lose a night's campaign."""
     start = time.monotonic()
     try:
         record = pick(index)
@@ -55,7 +55,7 @@ def run_one(pick: Pick, index: int) -> tuple[int, dict[str, Any]]:
         where = traceback.extract_tb(exc.__traceback__)[-1]
         reason = f"the pick crashed: {type(exc).__name__}: {exc} ({Path(where.filename).name}:{where.lineno})"
         record = {"ok": False, "outcome": "faulted", "reason": reason, "collision": False, "min_clearance_mm": None}
-    return index, {"run": index, **record, "wall_s": time.monotonic() - start}
+    return index, {"run": index, "wall_s": time.monotonic() - start, **record}
 
 
 class CampaignBackend(ABC):
@@ -130,8 +130,13 @@ class RayBackend(CampaignBackend):
         local = {} if self.address else {"num_cpus": self.jobs or len(os.sched_getaffinity(0))}
         try:
             self.ray.init(address=self.address, include_dashboard=False, log_to_driver=False, **local)
-        except (ConnectionError, RuntimeError, ValueError) as exc:
-            raise NotAvailableError(f"--address {self.address}: could not connect to a Ray cluster ({exc})") from exc
+        except Exception as exc:  # noqa: BLE001 - Ray raises bare Exception when its local node does not start
+            where = (
+                f"--address {self.address}: could not connect to a Ray cluster"
+                if self.address
+                else ("could not start a local Ray for the campaign")
+            )
+            raise NotAvailableError(f"{where} ({exc})") from exc
         self._started = True
 
     def imap(self, pick: Pick, indices: Sequence[int]) -> Iterator[tuple[int, dict[str, Any]]]:
