@@ -251,6 +251,8 @@ def _markdown(folder: Path, meta: Mapping[str, Any], results: list[dict[str, Any
     what = f"{meta['random']} random picks, seed {meta['seed']}" if meta.get("random") else f"scene {meta.get('scene')}"
     lines = [f"# Simulation campaign: {what}", ""]
     lines += [f"{runs} results in `{RESULTS_FILE}` (campaign started {meta.get('created_utc', '?')}).", ""]
+    if meta.get("random") and runs < meta["random"]:
+        lines += [f"The campaign is unfinished ({runs} of {meta['random']} picks): `--resume --out` runs the rest.", ""]
     lines += ["## Outcomes", ""]
     counts = Counter(r["outcome"] for r in results)
     lines += _table(
@@ -265,8 +267,8 @@ def _markdown(folder: Path, meta: Mapping[str, Any], results: list[dict[str, Any
     if any("viewing_moves" in r for r in results):
         viewed = sum(r.get("viewing_moves", 0) > 0 for r in results)
         lines += [
-            f"{viewed} picks needed a viewing move (the forks hid the pallet, so they moved clear of it to measure "
-            f"again), {figures['viewing_moves']} moves in all.",
+            f"Picks that needed a viewing move (the forks hid the pallet, so they moved clear of it to measure "
+            f"again): {viewed}, with {figures['viewing_moves']} moves in all.",
             "",
         ]
     failed = [r for r in results if not r["ok"]]
