@@ -15,24 +15,24 @@ pytest.importorskip("ray", reason="Ray is an optional extra: pip install -e '.[c
 CONFIG = load_config(DEFAULT_CONFIG)
 
 
-@pytest.mark.slow
-def test_a_real_pick_on_ray_gives_the_pools_result(tmp_path):
-    results = {}
-    for backend in ("pool", "ray"):
+def pick_on(backend: str, folder) -> dict:
+    """Pick 0 of seed 4242 on ``backend``; run again (at most three times) when it faulted: on the wall
+    clock, drive heartbeats starved by other processes fault a pick, which is not what this compares."""
+    for attempt in range(3):
+        out = folder / f"{backend}-{attempt}"
         summary = simulate_command(
-            CONFIG,
-            scene=None,
-            runs=30,
-            seed=4242,
-            indices=[0],
-            jobs=1,
-            backend=backend,
-            out=str(tmp_path / backend),
-            progress=False,
+            CONFIG, scene=None, runs=30, seed=4242, indices=[0], jobs=1, backend=backend, out=str(out), progress=False
         )
         assert summary["runs"] == 1 and summary["collisions"] == 0
-        (results[backend],) = read_results(tmp_path / backend)
-    pool, ray = results["pool"], results["ray"]
+        (record,) = read_results(out)
+        if record["outcome"] != "faulted":
+            break
+    return record
+
+
+@pytest.mark.slow
+def test_a_real_pick_on_ray_gives_the_pools_result(tmp_path):
+    pool, ray = pick_on("pool", tmp_path), pick_on("ray", tmp_path)
     assert ray["scene"] == pool["scene"] and ray["outcome"] == pool["outcome"] == "inserted"
     assert len(ray["measured"]) == len(pool["measured"]) >= 1
     for a, b in zip(ray["measured"], pool["measured"], strict=True):
