@@ -1,4 +1,4 @@
-"""The ``agf`` command: ``run | measure | calibrate | render | simulate | replay | serve | bench``.
+"""The ``agf`` command: ``run | measure | calibrate | render | simulate | report | replay | serve | bench``.
 
 Every sub-command takes ``--config`` and ``--json``. With ``--json`` it prints exactly one JSON
 object on stdout; on failure that object is ``{"ok": false, "error": "..."}``. Exit codes:
@@ -15,6 +15,7 @@ import argparse
 import json
 import sys
 from collections.abc import Callable, Sequence
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -87,9 +88,34 @@ def _cmd_simulate(args: argparse.Namespace, config: Config) -> dict[str, Any]:
     scene = _existing_file(args.scene) if args.scene else None
     if args.jobs is not None and args.jobs <= 0:
         raise InputError(f"--jobs: expected a positive number of picks side by side, got {args.jobs}")
+    if args.resume and args.out is None:
+        raise InputError("--resume: give --out CAMPAIGN_DIR, the folder of the campaign to finish")
     return _plugin(config, "simulate")(
-        config, scene=scene, runs=args.random, seed=args.seed, plots=args.plots, jobs=args.jobs
+        config,
+        scene=scene,
+        runs=args.random,
+        seed=args.seed,
+        plots=args.plots,
+        jobs=args.jobs,
+        backend=args.backend,
+        address=args.address,
+        out=args.out or str(_campaign_folder(args)),
+        resume=args.resume,
+        progress=not args.json,
     )
+
+
+def _campaign_folder(args: argparse.Namespace) -> Path:
+    """``campaigns/<UTC time>-random-N-seed-S`` (or ``-scene-NAME``): a new folder for every campaign."""
+    stamp = datetime.now(UTC).strftime("%Y%m%d-%H%M%S")
+    what = f"random-{args.random}-seed-{args.seed}" if args.random else f"scene-{Path(args.scene).stem}"
+    return Path("campaigns") / f"{stamp}-{what}"
+
+
+def _cmd_report(args: argparse.Namespace, config: Config) -> dict[str, Any]:
+    from agf.report import write_report
+
+    return {**write_report(Path(args.campaign)), "ok": True}
 
 
 def _cmd_run(args: argparse.Namespace, config: Config) -> dict[str, Any]:
@@ -175,7 +201,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--random", type=int, metavar="N", help="number of random scenes")
     p.add_argument("--seed", type=int, default=1, help="seed of the random scenes (default: %(default)s)")
     p.add_argument("--plots", metavar="DIR", help="write plots (PNG) here")
-    p.add_argument("--jobs", type=int, metavar="J", help="picks run side by side (default: one per core)")
+    p.add_argument("--jobs", type=int, metavar="J", help="picks run side by side (default: one per core or Ray CPU)")
+    p.add_argument("--backend", choices=("pool", "ray"), default="pool", help="where picks run (default: %(default)s)")
+    p.add_argument("--address", metavar="ADDR", help="Ray cluster to join (auto, HOST:PORT, ray://HOST:10001)")
+    p.add_argument("--out", metavar="CAMPAIGN_DIR", help="campaign folder (default: a new one under campaigns/)")
+    p.add_argument("--resume", action="store_true", help="finish the campaign in --out: run only missing picks")
     p.set_defaults(handler=_cmd_simulate)
 
     p = sub.add_parser("replay", parents=[common], help="re-run the measurement on a pick's logged frames")
@@ -188,6 +218,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--manufacturer", help="VDA 5050 manufacturer, a topic level (overrides fleet.manufacturer)")
     p.add_argument("--serial", help="VDA 5050 serial number, a topic level (overrides fleet.serial_number)")
     p.set_defaults(handler=_cmd_serve)
+
+    p = sub.add_parser("report", parents=[common], help="Markdown report with plots of a simulation campaign")
+    p.add_argument("campaign", metavar="CAMPAIGN_DIR", help="folder written by agf simulate (--out)")
+    p.set_defaults(handler=_cmd_report)
 
     p = sub.add_parser("bench", parents=[common], help="speed and accuracy figures")
     p.add_argument("--quick", action="store_true", help="reduced set, fast enough for CI")

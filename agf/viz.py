@@ -1,6 +1,8 @@
 """Overlays and plots (PNG) for people: what the vision saw and what the controller did.
 
-Drawing only; nothing here decides anything. Images are BGR uint8, as OpenCV writes them.
+Drawing only; nothing here decides anything. Image overlays are drawn with OpenCV on BGR uint8
+frames; plots (axes over time, the fork path) are matplotlib figures, drawn without pyplot so they
+need no display and no global state.
 """
 
 from __future__ import annotations
@@ -11,6 +13,9 @@ from typing import Any
 
 import cv2
 import numpy as np
+from matplotlib.collections import LineCollection
+from matplotlib.figure import Figure
+from matplotlib.patches import Rectangle
 from numpy.typing import NDArray
 
 from agf.camera.base import CameraModel
@@ -21,6 +26,7 @@ from agf.vision.face_model import face_model_from_pallet
 from agf.vision.panorama import render_panorama
 
 GREEN, RED, YELLOW, CYAN = (60, 200, 60), (40, 40, 230), (0, 215, 255), (230, 200, 0)
+PATH_COLOURS = ("#00a000", "#ff8c00", "#dc0000")  # matplotlib RGB: clear, within 10 mm, contact
 
 
 def polyline(image: NDArray, camera: CameraModel, points_c: NDArray, colour, thickness: int = 2) -> None:
@@ -253,62 +259,68 @@ def calibration_overlay(frame: NDArray, camera: CameraModel, fit: Any, out: Path
     write_png(out, view)
 
 
+def _save_figure(figure: Figure, path: Path) -> str:
+    if path.suffix.lower() != ".png":
+        raise InputError(f"{path}: expected a file name ending in .png")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(path, dpi=100)
+    return str(path)
+
+
+def _shade_states(ax: Any, t: NDArray, states: list[str]) -> None:
+    """Alternating background bands per controller state, labelled at the top of the panel; a pause
+    without samples between motions (the verify measurement) is its own band, ``no motion``."""
+    pause = np.diff(t) > max(10 * float(np.median(np.diff(t))), 0.2) if len(t) > 1 else np.zeros(0, bool)
+    bands, a = [], 0
+    for i in range(1, len(t)):
+        if pause[i - 1]:
+            bands += [(t[a], t[i - 1], states[a]), (t[i - 1], t[i], "no motion")]
+            a = i
+        elif states[i] != states[a]:
+            bands.append((t[a], t[i], states[a]))
+            a = i
+    bands.append((t[a], t[-1], states[a]))
+    for k, (start, end, label) in enumerate(bands):
+        colour = "white" if label == "no motion" else "0.90" if k % 2 == 0 else "0.96"
+        ax.axvspan(start, end, color=colour, zorder=0)
+        ax.annotate(
+            label,
+            ((start + end) / 2, 1.0),
+            xycoords=("data", "axes fraction"),
+            ha="center",
+            va="bottom",
+            fontsize="small",
+            color="0.35",
+        )
+
+
 def pick_plots(result: Any, folder: Path) -> list[str]:
-    """Axis setpoints (thin) and actual positions (thick) over the pick, one panel per axis (PNG)."""
+    """Axis setpoints (dashed, on top) and actual positions (solid) over the pick's motions, one panel per
+    axis, with the controller state in the background (``pick_axes.png`` in ``folder``)."""
     if not result.log:
         return []
     names = list(result.log[0]["actual"])
     t0 = result.log[0]["t"]
     t = np.array([row["t"] - t0 for row in result.log])
-    width, panel = 1200, 260
-    canvas = np.full((panel * len(names), width, 3), 255, np.uint8)
-    for k, name in enumerate(names):
-        actual = np.array([row["actual"][name] for row in result.log])
-        setpoint = np.array([row["setpoint"].get(name, np.nan) for row in result.log])
-        scale = 1e3 if name != "tilt" else np.degrees(1.0)
-        unit = "mm" if name != "tilt" else "deg"
-        values = np.concatenate([actual, setpoint[np.isfinite(setpoint)]]) * scale
-        low, high = float(values.min()), float(values.max())
-        span = max(high - low, 1e-6)
-        top = k * panel
-
-        def to_px(
-            times: NDArray, v: NDArray, top: int = top, low: float = low, span: float = span, scale: float = scale
-        ) -> NDArray:
-            u = 60 + (times / max(t[-1], 1e-6)) * (width - 80)
-            w = top + panel - 30 - (v * scale - low) / span * (panel - 60)
-            return np.stack([u, w], 1).astype(np.int32)
-
-        ok = np.isfinite(setpoint)
-        cv2.polylines(canvas, [to_px(t[ok], setpoint[ok])], False, (200, 120, 0), 1, cv2.LINE_AA)
-        cv2.polylines(canvas, [to_px(t, actual)], False, (30, 30, 200), 2, cv2.LINE_AA)
-        cv2.putText(
-            canvas,
-            f"{name} [{unit}]  {low:.1f} .. {high:.1f}   (blue setpoint, red actual)",
-            (60, top + 22),
-            cv2.FONT_HERSHEY_SIMPLEX,
-            0.55,
-            (0, 0, 0),
-            1,
-            cv2.LINE_AA,
-        )
-    cv2.putText(
-        canvas,
-        f"time 0 .. {t[-1]:.1f} s of motion",
-        (60, canvas.shape[0] - 8),
-        cv2.FONT_HERSHEY_SIMPLEX,
-        0.5,
-        (0, 0, 0),
-        1,
-        cv2.LINE_AA,
-    )
+    figure = Figure(figsize=(12, 2.6 * len(names) + 0.6), layout="constrained")
+    axes = figure.subplots(len(names), 1, sharex=True, squeeze=False)[:, 0]
+    for ax, name in zip(axes, names, strict=True):
+        scale, unit = (np.degrees(1.0), "deg") if name == "tilt" else (1e3, "mm")
+        actual = np.array([row["actual"][name] for row in result.log]) * scale
+        setpoint = np.array([row["setpoint"].get(name, np.nan) for row in result.log]) * scale
+        _shade_states(ax, t, [row["state"] for row in result.log])
+        ax.plot(t, actual, color="tab:red", linewidth=2.2, label="actual", zorder=2)
+        ax.plot(t, setpoint, color="tab:blue", linewidth=1.2, linestyle="--", label="setpoint", zorder=3)
+        ax.set_ylabel(f"{name} [{unit}]")
+        ax.grid(True, alpha=0.5)
+        ax.legend(loc="best", fontsize="small")
+    axes[-1].set_xlabel("time from the first motion [s]")
     path = folder / "pick_axes.png"
-    write_png(path, canvas)
-    return [str(path)]
+    return [_save_figure(figure, path)]
 
 
 def fork_path_side_view(outlines: NDArray, clearances: NDArray, pallet: PalletType, path: Path) -> str:
-    """Side view of the fork path through the pocket, with clearances (PNG).
+    """Side view of the fork path through the pocket, and the clearance along it (PNG).
 
     Parameters
     ----------
@@ -322,45 +334,64 @@ def fork_path_side_view(outlines: NDArray, clearances: NDArray, pallet: PalletTy
     path : Path
         The PNG to write.
 
-    The height axis is stretched (the factor is printed) so that millimetres of clearance show against
-    a metre of fork travel.
+    The height axis is stretched against the length axis (both in mm) so that millimetres of
+    clearance show against a metre of fork travel. The tip's path is green with more than 10 mm of
+    clearance, orange below, red at contact.
     """
     outlines, clearances = np.asarray(outlines, float), np.asarray(clearances, float)
     if outlines.ndim != 3 or outlines.shape[1:] != (4, 3) or clearances.shape != outlines.shape[:1]:
         raise ValueError(f"expected outlines (T, 4, 3) and clearances (T,), got {outlines.shape}, {clearances.shape}")
-    width, height, pad = 1400, 560, 60
-    x_low, x_high = min(outlines[..., 0].min(), 0.0) - 0.05, max(outlines[..., 0].max(), pallet.length) + 0.05
-    z_low = min(outlines[..., 2].min(), pallet.deck_bottom) - 0.03
-    z_high = max(outlines[..., 2].max(), pallet.deck_top) + 0.03
-    sx = (width - 2 * pad) / (x_high - x_low)
-    sz = min((height - 2 * pad) / (z_high - z_low), 8 * sx)
-
-    def to_px(x: NDArray, z: NDArray) -> NDArray[np.int32]:
-        return np.stack([pad + (x - x_low) * sx, height - pad - (z - z_low) * sz], -1).round().astype(np.int32)
-
-    canvas = np.full((height, width, 3), 255, np.uint8)
+    mm = 1e3
+    figure = Figure(figsize=(14, 7), layout="constrained")
+    side, along = figure.subplots(2, 1, sharex=True, height_ratios=(2, 1))
     half = pallet.pocket_height / 2
     solids = [(half, pallet.deck_top)] + ([(pallet.deck_bottom, -half)] if pallet.bottom > 0 else [])
-    for z0, z1 in solids:
-        corners = to_px(np.array([0.0, pallet.length]), np.array([z0, z1]))
-        cv2.rectangle(canvas, tuple(corners[0].tolist()), tuple(corners[1].tolist()), (170, 170, 170), -1)
-    for k in np.unique(np.linspace(0, len(outlines) - 1, 9).round().astype(int)):
-        cv2.polylines(canvas, [to_px(outlines[k, :, 0], outlines[k, :, 2])], True, (220, 180, 120), 1, cv2.LINE_AA)
-    tip = outlines[:, :2].mean(axis=1)
-    near = np.where(clearances[:, None] < 0.01, (0, 140, 255), (0, 160, 0))
-    colours = np.where(clearances[:, None] < 0, (0, 0, 220), near)
-    points = to_px(tip[:, 0], tip[:, 2])
-    for a, b, colour in zip(points[:-1], points[1:], colours[1:], strict=True):
-        cv2.line(canvas, tuple(a.tolist()), tuple(b.tolist()), tuple(int(c) for c in colour), 2, cv2.LINE_AA)
+    for k, (z0, z1) in enumerate(solids):
+        side.add_patch(
+            Rectangle(
+                (0, z0 * mm),
+                pallet.length * mm,
+                (z1 - z0) * mm,
+                color="0.7",
+                label="deck and bottom band" if k == 0 else None,
+            )
+        )
+    for n, k in enumerate(np.unique(np.linspace(0, len(outlines) - 1, 9).round().astype(int))):
+        closed = np.vstack([outlines[k], outlines[k, :1]]) * mm
+        side.plot(
+            closed[:, 0],
+            closed[:, 2],
+            color="tab:blue",
+            linewidth=0.8,
+            alpha=0.6,
+            label="left tine at 9 instants" if n == 0 else None,
+        )
+    tip = outlines[:, :2].mean(axis=1) * mm
+    classes = np.where(clearances < 0, 2, np.where(clearances < 0.01, 1, 0))
+    labels = ("clearance > 10 mm", "clearance 0-10 mm", "contact")
+    segments = np.stack([tip[:-1][:, [0, 2]], tip[1:][:, [0, 2]]], axis=1)
+    side.add_collection(LineCollection(segments, colors=[PATH_COLOURS[c] for c in classes[1:]], linewidths=2.5))
+    for c in np.unique(classes[1:]):
+        side.plot([], [], color=PATH_COLOURS[c], linewidth=2.5, label=f"tip path, {labels[c]}")
     worst = int(np.argmin(clearances))
-    cv2.circle(canvas, tuple(points[worst].tolist()), 7, (0, 0, 0), 1, cv2.LINE_AA)
-    lines = [
-        f"fork tip path in the pallet frame; min clearance {clearances[worst] * 1e3:.1f} mm at tip x "
-        f"{tip[worst, 0] * 1e3:.0f} mm (circle)",
-        f"grey: deck and bottom band; blue: left tine at 9 instants; path green > 10 mm, orange 0-10 mm, red contact; "
-        f"height x{sz / sx:.1f}",
-    ]
-    for i, text in enumerate(lines):
-        cv2.putText(canvas, text, (pad, 22 + 20 * i), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
-    write_png(path, canvas)
-    return str(path)
+    side.plot(
+        tip[worst, 0],
+        tip[worst, 2],
+        "o",
+        markersize=12,
+        markerfacecolor="none",
+        color="black",
+        label=f"least clearance {clearances[worst] * mm:.1f} mm",
+    )
+    side.set_ylabel("height in the pallet frame [mm]")
+    side.set_title("fork tip path in the pallet frame (side view; height axis stretched)")
+    side.grid(True, alpha=0.5)
+    side.legend(loc="upper left", fontsize="small")
+    side.autoscale_view()
+    along.plot(tip[:, 0], clearances * mm, color="black", linewidth=1.2)
+    along.axhline(10.0, color="tab:orange", linestyle=":", linewidth=1.0)
+    along.axhline(0.0, color="black", linewidth=0.8)
+    along.set_xlabel("fork tip x in the pallet frame [mm] (0: the pallet's front face)")
+    along.set_ylabel("clearance [mm]")
+    along.grid(True, alpha=0.5)
+    return _save_figure(figure, path)

@@ -14,12 +14,8 @@ import dataclasses
 import functools
 import json
 import math
-import multiprocessing
-import os
-import statistics
-import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -28,7 +24,7 @@ import numpy as np
 from agf.camera import load_camera
 from agf.config import Config, load_calibration
 from agf.controller import ControllerConfig, PickController, PickResult
-from agf.errors import ConfigError, MeasurementError
+from agf.errors import ConfigError, DriveFault, MeasurementError
 from agf.frames import Frame, FrameSource
 from agf.geometry import Transform
 from agf.kinematics import MastGeometry, fork_in_truck_from_axes
@@ -44,6 +40,7 @@ from agf.vision.measure import measure_pallet
 from agf.viz import fork_path_side_view, pick_plots
 from drivers.can_tap import CanTap
 from drivers.cia402_axis import axes_from_config
+from drivers.sim.campaign import make_backend, run_campaign
 from drivers.sim.collision import clearance, pallet_parts, tine_surface_points
 from drivers.sim.fast_render import render_fast
 
@@ -68,6 +65,7 @@ class RenderedCamera(FrameSource):
             return None
         scene = self.world.scene_now()
         image, _ = render_fast(scene, self.world.camera)
+        self.world.frame_truths.append(scene.pallet.in_fork)
         return image
 
 
@@ -87,6 +85,9 @@ class SimulatedWorld:
             bus_wrapper=bus_wrapper,  # the fault tests put drivers.lossy_bus between master and drives
         )
         self.frames_lost = 0
+        self.frame_truths: list[Transform] = []  # the true pallet_in_fork of each rendered frame
+        self.measured_truths: list[Transform] = []  # ... of each frame measured successfully
+        self.refusal: str | None = None  # why the last measurement was refused, None when it was not
         self.min_clearance = math.inf
         self.inside = False
         self._tines = tine_surface_points(config.forks)
@@ -97,7 +98,7 @@ class SimulatedWorld:
         self._parts = pallet_parts(self.pallet)
         try:
             self._move_to(START)
-        except Exception:  # a world that never started must not leave its drives on the bus for the next one
+        except BaseException:  # no `with` holds the world yet: close its bus, or its drives live on
             self.network.close()
             raise
         self.pallet_in_truck = fork_in_truck_from_axes(self.positions(), self.mast) @ scene.pallet.in_fork
@@ -151,9 +152,16 @@ class SimulatedWorld:
         camera = load_camera(self.config.vision.camera)
 
         def measure(frame: Frame, prior: PalletMeasurement | None) -> PalletMeasurement:
-            return measure_pallet(
-                frame.image, camera, calibration, self.pallet, self.config.vision.search, forks=self.config.forks
-            ).measurement
+            try:
+                measurement = measure_pallet(
+                    frame.image, camera, calibration, self.pallet, self.config.vision.search, forks=self.config.forks
+                ).measurement
+            except MeasurementError as exc:
+                self.refusal = str(exc)
+                raise
+            self.refusal = None
+            self.measured_truths.append(self.frame_truths[frame.index - 1])
+            return measurement
 
         settings = pick_settings_from_mapping(self.config.sections.get("insertion"), f"{self.config.source}: insertion")
         planner = PickPlanner(
@@ -192,35 +200,51 @@ def drive_starter(config: Config) -> Any:
     return None if spec is None else load_object(spec, key=f"{config.source}: plugins.drives")
 
 
+def scene_summary(scene: Scene) -> dict[str, Any]:
+    """What a campaign report plots results against: the true pallet pose at the start, load and looks."""
+    return {
+        "pallet_type": scene.pallet.type,
+        "pallet_in_fork": scene.pallet.in_fork.to_dict(),
+        "loaded": scene.loaded,
+        **dataclasses.asdict(scene.environment),
+        "seed": scene.seed,
+    }
+
+
+def pick_outcome(result: PickResult, world: SimulatedWorld) -> str:
+    """``collided`` (any contact), ``inserted``, ``refused`` (the pick ended on a refused measurement or an
+    unsafe plan) or ``faulted`` (drive fault, lost frame, timeout, the pallet moving after alignment)."""
+    if world.min_clearance < 0:
+        return "collided"
+    if result.ok:
+        return "inserted"
+    reason = result.reason or ""
+    unsafe = result.plan is not None and not result.plan.safe and reason.startswith("planning")
+    return "refused" if unsafe or (world.refusal is not None and world.refusal in reason) else "faulted"
+
+
 def pick_summary(result: PickResult, world: SimulatedWorld) -> dict[str, Any]:
     final = world.scene_now().pallet.in_fork.to_dict()
     return {
         "ok": result.ok,
+        "outcome": pick_outcome(result, world),
         "state": result.state,
         "reason": result.reason,
         "collision": world.min_clearance < 0,
-        "min_clearance_mm": world.min_clearance * 1e3,
+        "min_clearance_mm": world.min_clearance * 1e3 if math.isfinite(world.min_clearance) else None,
         "cycle_s": sum(result.durations.values()),
         "durations_s": result.durations,
         "measured": [m.pallet_in_fork.to_dict() for m in result.measurements],
+        "truth": [t.to_dict() for t in world.measured_truths[: len(result.measurements)]],
+        "scene": scene_summary(world.scene),
         "pallet_in_fork_at_end": final,
     }
 
 
-def _own_core(counter: Any) -> None:
-    """Pin a simulate job to a core of its own: jobs rendering on every core starved the others' drive
-    threads into heartbeat and following-error faults (5 of 200 picks)."""
-    with counter.get_lock():
-        index = counter.value
-        counter.value += 1
-    cores = sorted(os.sched_getaffinity(0))
-    os.sched_setaffinity(0, {cores[index % len(cores)]})
-
-
-def _pick(config: Config, plots: Path | None, numbered: tuple[int, Scene]) -> dict[str, Any]:
-    """One whole pick in a world of its own, summarised by :func:`pick_summary`; its plots in
-    ``plots``/pick-NNN when ``plots`` is given."""
-    index, scene = numbered
+def _pick(config: Config, plots: Path | None, base: Scene, seed: int, random: bool, index: int) -> dict[str, Any]:
+    """Pick ``index`` of a campaign in a world of its own, summarised by :func:`pick_summary`; its plots in
+    ``plots``/pick-NNN when ``plots`` is given. ``random``: the scene is :func:`campaign_scene`, else ``base``."""
+    scene = campaign_scene(base, seed, index) if random else base
     try:
         with pick_log(config, scene, f"simulate-pick-{index:03d}") as log, SimulatedWorld(config, scene) as world:
             result = world.controller(recorder=log).run()
@@ -228,8 +252,15 @@ def _pick(config: Config, plots: Path | None, numbered: tuple[int, Scene]) -> di
         if plots is not None:
             summary["plots"] = world.plots(result, plots / f"pick-{index:03d}")
         return summary
-    except MeasurementError as exc:
-        return {"ok": False, "reason": str(exc), "collision": False, "min_clearance_mm": math.inf}
+    except (MeasurementError, DriveFault) as exc:  # the world could not be set up: no pick was tried
+        return {
+            "ok": False,
+            "outcome": "refused" if isinstance(exc, MeasurementError) else "faulted",
+            "reason": f"setting up the simulated world: {exc}",
+            "collision": False,
+            "min_clearance_mm": None,
+            "scene": scene_summary(scene),
+        }
 
 
 def run_command(config: Config, *, plots: str | None = None, progress: bool = True) -> dict[str, Any]:
@@ -273,6 +304,12 @@ def random_scene(rng: np.random.Generator, base: Scene) -> Scene:
     )
 
 
+def campaign_scene(base: Scene, seed: int, index: int) -> Scene:
+    """Pick ``index`` of the random campaign ``seed``, drawn from a generator of its own: any pick can be
+    run alone and gives the scene it has inside the whole campaign."""
+    return random_scene(np.random.default_rng([seed, index]), base)
+
+
 def simulate_command(
     config: Config,
     *,
@@ -281,41 +318,26 @@ def simulate_command(
     seed: int,
     plots: str | None = None,
     jobs: int | None = None,
+    backend: str = "pool",
+    address: str | None = None,
+    out: str | None = None,
+    resume: bool = False,
+    indices: Sequence[int] | None = None,
+    progress: bool = True,
 ) -> dict[str, Any]:
-    """``agf simulate``: whole picks in the simulated world; collisions and refusals counted.
-
-    Picks run in real time and mostly wait on their drives, so ``jobs`` of them (default one per core)
-    run side by side, each in its own process with its own virtual CAN bus.
-    """
+    """``agf simulate``: whole picks in the simulated world, run as a campaign
+    (:func:`drivers.sim.campaign.run_campaign`: results streamed to ``out``, resumable, on a process pool
+    or Ray). ``indices`` runs those picks of the campaign only (default: all ``runs``)."""
     base = load_scene(scene or repo_path("configs/scenes/pick.yaml"))
-    rng = np.random.default_rng(seed)
-    scenes = [base] if runs is None else [random_scene(rng, base) for _ in range(runs)]
-    jobs = min(jobs or len(os.sched_getaffinity(0)), len(scenes))
-    pick = functools.partial(_pick, config, Path(plots) if plots else None)
-    summaries: list[dict[str, Any]] = []
-    with contextlib.ExitStack() as stack:
-        context = multiprocessing.get_context("fork")
-        counter = context.Value("i", 0)
-        pool = stack.enter_context(context.Pool(jobs, _own_core, (counter,))) if jobs > 1 else None
-        for summary in pool.imap(pick, enumerate(scenes)) if pool else map(pick, enumerate(scenes)):
-            summaries.append(summary)
-            done, inserted = len(summaries), sum(s["ok"] for s in summaries)
-            print(f"agf simulate: {done}/{len(scenes)} picks, {inserted} inserted", file=sys.stderr, flush=True)
-    failures = [
-        {"run": i, "reason": summary["reason"], "pallet_in_fork": s.pallet.in_fork.to_dict(), "log": summary.get("log")}
-        for i, (summary, s) in enumerate(zip(summaries, scenes, strict=True))
-        if not summary["ok"]
-    ]
-    inserted = sum(s["ok"] for s in summaries)
-    cycles = [s["cycle_s"] for s in summaries if s["ok"]]
-    clearances = [s["min_clearance_mm"] for s in summaries if math.isfinite(s["min_clearance_mm"])]
-    return {
-        **({"plots": plots} if plots else {}),
-        "ok": all(not s["collision"] for s in summaries),
-        "runs": len(summaries),
-        "inserted": inserted,
-        "collisions": sum(s["collision"] for s in summaries),
-        "min_clearance_mm": min(clearances) if clearances else None,
-        "median_cycle_s": statistics.median(cycles) if cycles else None,
-        "failures": failures,
-    }
+    pick = functools.partial(_pick, config, Path(plots) if plots else None, base, seed, runs is not None)
+    identity = {"scene": str(scene) if scene else None, "random": runs, "seed": seed if runs else None}
+    summary = run_campaign(
+        pick,
+        list(range(runs or 1)) if indices is None else list(indices),
+        identity,
+        out=Path(out) if out else None,
+        backend=make_backend(backend, jobs=jobs, address=address),
+        resume=resume,
+        progress=progress,
+    )
+    return {**({"plots": plots} if plots else {}), **summary}

@@ -1,0 +1,323 @@
+"""Campaign results and their report (``agf report CAMPAIGN_DIR``): Markdown with PNG plots.
+
+A campaign folder holds ``campaign.json`` (what was run) and ``results.jsonl``, one JSON object per
+finished pick (the simulated world's ``pick_summary`` with its run index). The report counts inserted,
+refused, faulted and collided picks, tables the refusal and fault reasons, plots the measurement error
+against the pallet's pitch, height, yaw and the light, the clearance distribution and the cycle times,
+and links every failure to its pick's recorder file when the pick wrote one.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import statistics
+from collections import Counter
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
+
+from agf.errors import InputError
+
+CAMPAIGN_FILE, RESULTS_FILE, REPORT_FILE = "campaign.json", "results.jsonl", "report.md"
+OUTCOMES = ("inserted", "refused", "faulted", "collided")
+POSE_KEYS = ("x_mm", "y_mm", "z_mm", "pitch_deg", "yaw_deg")
+# Per-pick keys every result carries (type checked); the others are optional: a pick that crashed or
+# was refused before the world existed has no measurements, durations or scene.
+REQUIRED = {"run": int, "ok": bool, "outcome": str, "collision": bool}
+OPTIONAL = {
+    "reason": (str, type(None)),
+    "min_clearance_mm": (int, float, type(None)),
+    "cycle_s": (int, float),
+    "durations_s": dict,
+    "measured": list,
+    "truth": list,
+    "scene": dict,
+    "log": (str, type(None)),
+    "viewing_moves": int,
+}
+COLOURS = {"inserted": "tab:green", "refused": "tab:orange", "faulted": "tab:purple", "collided": "tab:red"}
+
+
+def validate_result(record: Any, where: str) -> dict[str, Any]:
+    """One line of ``results.jsonl`` checked for the keys the report reads; InputError names what is wrong."""
+    if not isinstance(record, dict):
+        raise InputError(f"{where}: expected a JSON object per line, got {type(record).__name__}")
+    for key, kind in REQUIRED.items():
+        if key not in record:
+            raise InputError(f"{where}: missing key {key!r}")
+        if not isinstance(record[key], kind) or (kind is int and isinstance(record[key], bool)):
+            raise InputError(f"{where}: {key}: expected {kind.__name__}, got {record[key]!r}")
+    for key, kinds in OPTIONAL.items():
+        if key in record and not isinstance(record[key], kinds):
+            raise InputError(f"{where}: {key}: expected {kinds}, got {type(record[key]).__name__}")
+    if record["outcome"] not in OUTCOMES:
+        raise InputError(f"{where}: outcome: expected one of {', '.join(OUTCOMES)}, got {record['outcome']!r}")
+    if record["run"] < 0:
+        raise InputError(f"{where}: run: expected a run index >= 0, got {record['run']}")
+    if len(record.get("truth", [])) > len(record.get("measured", [])):
+        raise InputError(f"{where}: truth: more entries than measured")
+    return record
+
+
+def read_results(folder: Path) -> list[dict[str, Any]]:
+    """The validated results of a campaign folder, by run index. A last line without its newline is a
+    write the campaign did not finish (it is still running, or was killed) and is left out."""
+    path = Path(folder) / RESULTS_FILE
+    if not path.is_file():
+        raise InputError(f"{path}: not found (a campaign folder holds {RESULTS_FILE}, written by agf simulate)")
+    text = path.read_text()
+    lines = text.split("\n")[:-1]  # the part after the last newline is unfinished (usually empty)
+    results: dict[int, dict[str, Any]] = {}
+    for number, line in enumerate(lines, 1):
+        if not line.strip():
+            continue
+        where = f"{path}:{number}"
+        try:
+            record = validate_result(json.loads(line), where)
+        except json.JSONDecodeError as exc:
+            raise InputError(f"{where}: not JSON ({exc.msg})") from exc
+        if record["run"] in results:
+            raise InputError(f"{where}: run {record['run']} appears twice")
+        results[record["run"]] = record
+    return [results[k] for k in sorted(results)]
+
+
+def campaign_figures(results: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
+    """The campaign's summary (``agf simulate``'s JSON): counts, clearance, cycle time and the failures."""
+    results = list(results)
+    counts = Counter(r["outcome"] for r in results)
+    cycles = [r["cycle_s"] for r in results if r["ok"] and "cycle_s" in r]
+    clearances = [r["min_clearance_mm"] for r in results if r.get("min_clearance_mm") is not None]
+    failures = [
+        {
+            "run": r["run"],
+            "outcome": r["outcome"],
+            "reason": r.get("reason"),
+            **({"pallet_in_fork": r["scene"]["pallet_in_fork"]} if "scene" in r else {}),
+            **({"log": r["log"]} if r.get("log") else {}),
+        }
+        for r in results
+        if not r["ok"]
+    ]
+    return {
+        "ok": not any(r["collision"] for r in results),
+        "runs": len(results),
+        "inserted": counts["inserted"],
+        "refused": counts["refused"],
+        "faulted": counts["faulted"],
+        "collisions": sum(r["collision"] for r in results),
+        "viewing_moves": sum(r.get("viewing_moves", 0) for r in results),
+        "min_clearance_mm": min(clearances) if clearances else None,
+        "median_cycle_s": statistics.median(cycles) if cycles else None,
+        "failures": failures,
+    }
+
+
+def reason_class(reason: str | None) -> str:
+    """A reason with its numbers replaced by ``#``, so refusals of one kind count together (numbers inside
+    words, such as ``0x8130`` or ``cia402``, are part of the kind)."""
+    return re.sub(r"(?<![\w.])[-+]?\d+(\.\d+)?(?!\w)", "#", reason or "(no reason given)")
+
+
+def measurement_errors(results: Iterable[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """Every measurement with its truth: ``{"run", "index", "error": {key: measured - true}, "scene"}``."""
+    rows = []
+    for r in results:
+        for i, (measured, true) in enumerate(zip(r.get("measured", []), r.get("truth", []), strict=False)):
+            error = {k: measured[k] - true[k] for k in POSE_KEYS}
+            rows.append({"run": r["run"], "index": i, "error": error, "scene": r.get("scene")})
+    return rows
+
+
+def _save(figure: Figure, path: Path) -> str:
+    figure.savefig(path, dpi=110)
+    return path.name
+
+
+def _error_plot(errors: list[dict[str, Any]], path: Path) -> str:
+    """Height and pitch error (rows) against the pallet's pitch, height, yaw and the light (columns)."""
+    against = [
+        ("true pitch [deg]", lambda s: s["pallet_in_fork"]["pitch_deg"]),
+        ("true height z [mm]", lambda s: s["pallet_in_fork"]["z_mm"]),
+        ("true yaw [deg]", lambda s: s["pallet_in_fork"]["yaw_deg"]),
+        ("light (exposure factor)", lambda s: s["light"]),
+    ]
+    rows = [("z_mm", "height error [mm]"), ("pitch_deg", "pitch error [deg]")]
+    figure = Figure(figsize=(14, 6.5), layout="constrained")
+    axes = figure.subplots(len(rows), len(against), sharey="row", squeeze=False)
+    usable = [e for e in errors if e["scene"]]
+    for column, (xlabel, value) in enumerate(against):
+        for row, (key, ylabel) in enumerate(rows):
+            ax = axes[row, column]
+            for index, (label, marker) in enumerate((("first measurement", "o"), ("verify (aligned)", "^"))):
+                chosen = [e for e in usable if (e["index"] > 0) == bool(index)]
+                ax.scatter(
+                    [value(e["scene"]) for e in chosen],
+                    [e["error"][key] for e in chosen],
+                    s=18,
+                    marker=marker,
+                    alpha=0.75,
+                    label=label,
+                )
+            ax.axhline(0.0, color="black", linewidth=0.8)
+            ax.grid(True, alpha=0.4)
+            ax.set_xlabel(xlabel)
+            if column == 0:
+                ax.set_ylabel(ylabel)
+    axes[0, 0].legend(loc="best", fontsize="small")
+    figure.suptitle("measurement error (measured - true pallet_in_fork) against the scene")
+    return _save(figure, path)
+
+
+def _clearance_plot(results: list[Mapping[str, Any]], path: Path) -> str:
+    figure = Figure(figsize=(8, 4), layout="constrained")
+    ax = figure.subplots()
+    groups = {
+        o: [r["min_clearance_mm"] for r in results if r["outcome"] == o and r.get("min_clearance_mm") is not None]
+        for o in OUTCOMES
+    }
+    groups = {o: v for o, v in groups.items() if v}
+    if groups:
+        values = np.concatenate([v for v in groups.values()])
+        low, high = math.floor(min(values.min(), 0.0)), math.ceil(values.max()) + 1
+        bins = np.arange(low, high + 1, max(1, math.ceil((high - low) / 200)))  # 1 mm bins up to 200 of them
+        ax.hist(list(groups.values()), bins=bins, stacked=True, label=list(groups), color=[COLOURS[o] for o in groups])
+        ax.legend()
+    ax.yaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.axvline(0.0, color="red", linestyle="--", linewidth=1.2, label="contact")
+    ax.set_xlabel("smallest tine-to-pallet clearance over the pick [mm]")
+    ax.set_ylabel("picks")
+    ax.grid(True, alpha=0.4)
+    ax.set_title("clearance distribution (left of the red line: collision)")
+    return _save(figure, path)
+
+
+def _cycle_plot(results: list[Mapping[str, Any]], path: Path) -> str:
+    inserted = [r for r in results if r["ok"] and "cycle_s" in r]
+    figure = Figure(figsize=(12, 4), layout="constrained")
+    left, right = figure.subplots(1, 2)
+    left.hist([r["cycle_s"] for r in inserted], bins=30, color=COLOURS["inserted"])
+    left.set_xlabel("pick cycle [s]")
+    left.set_ylabel("inserted picks")
+    left.yaxis.set_major_locator(MaxNLocator(integer=True))
+    left.set_title("cycle time of the inserted picks")
+    left.grid(True, alpha=0.4)
+    states = list(dict.fromkeys(s for r in inserted for s in r.get("durations_s", {})))
+    if states:
+        spread = [[r.get("durations_s", {}).get(s, 0.0) for r in inserted] for s in states]
+        right.boxplot(spread, tick_labels=states, orientation="horizontal")
+    right.set_xlabel("time in state [s]")
+    right.set_title("where the time goes (inserted picks)")
+    right.grid(True, alpha=0.4)
+    return _save(figure, path)
+
+
+def _table(header: list[str], rows: Iterable[Iterable[Any]]) -> list[str]:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(str(c).replace("|", "\\|") for c in row) + " |" for row in rows]
+    return lines + [""]
+
+
+def _log_link(log: str | None, folder: Path) -> str:
+    if not log:
+        return "-"
+    path = Path(log) if Path(log).is_absolute() else Path(log).resolve()
+    if not path.is_file():
+        return f"{log} (missing)"
+    return f"[{path.name}]({os.path.relpath(path, folder.resolve())})"
+
+
+def _pose_text(record: Mapping[str, Any]) -> str:
+    if "scene" not in record:
+        return "-"
+    p = record["scene"]["pallet_in_fork"]
+    return f"x {p['x_mm']:.0f}, z {p['z_mm']:.0f} mm, pitch {p['pitch_deg']:.2f}, yaw {p['yaw_deg']:.2f} deg"
+
+
+def _percentile(values: list[float], q: float) -> float:
+    return float(np.percentile(values, q)) if values else math.nan
+
+
+def _markdown(folder: Path, meta: Mapping[str, Any], results: list[dict[str, Any]], plots: dict[str, str]) -> str:
+    figures = campaign_figures(results)
+    runs = len(results)
+    what = f"{meta['random']} random picks, seed {meta['seed']}" if meta.get("random") else f"scene {meta.get('scene')}"
+    lines = [f"# Simulation campaign: {what}", ""]
+    lines += [f"{runs} results in `{RESULTS_FILE}` (campaign started {meta.get('created_utc', '?')}).", ""]
+    if meta.get("random") and runs < meta["random"]:
+        lines += [f"The campaign is unfinished ({runs} of {meta['random']} picks): `--resume --out` runs the rest.", ""]
+    lines += ["## Outcomes", ""]
+    counts = Counter(r["outcome"] for r in results)
+    lines += _table(
+        ["outcome", "picks", "share"], [(o, counts[o], f"{counts[o] / max(runs, 1):.1%}") for o in OUTCOMES]
+    )
+    clearance, cycle = figures["min_clearance_mm"], figures["median_cycle_s"]
+    lines += [
+        f"Smallest clearance over all picks: {'-' if clearance is None else f'{clearance:.1f} mm'}; "
+        f"median cycle of the inserted picks: {'-' if cycle is None else f'{cycle:.1f} s'}.",
+        "",
+    ]
+    if any("viewing_moves" in r for r in results):
+        viewed = sum(r.get("viewing_moves", 0) > 0 for r in results)
+        lines += [
+            f"Picks that needed a viewing move (the forks hid the pallet, so they moved clear of it to measure "
+            f"again): {viewed}, with {figures['viewing_moves']} moves in all.",
+            "",
+        ]
+    failed = [r for r in results if not r["ok"]]
+    for outcome in ("refused", "faulted", "collided"):
+        reasons = Counter(reason_class(r.get("reason")) for r in failed if r["outcome"] == outcome)
+        if reasons:
+            lines += [f"## {outcome.capitalize()}: reasons", ""]
+            lines += _table(["reason", "picks"], reasons.most_common())
+    lines += ["## Failures", ""]
+    if failed:
+        rows = [
+            (r["run"], r["outcome"], r.get("reason") or "-", _pose_text(r), _log_link(r.get("log"), folder))
+            for r in failed
+        ]
+        lines += _table(["run", "outcome", "reason", "pallet at the start (in fork)", "recorder log"], rows)
+    else:
+        lines += ["None: every pick inserted.", ""]
+    errors = measurement_errors(results)
+    lines += ["## Measurement error", ""]
+    if errors:
+        stats = []
+        for key in POSE_KEYS:
+            values = [abs(e["error"][key]) for e in errors]
+            stats.append((key, f"{np.median(values):.2f}", f"{_percentile(values, 95):.2f}", f"{max(values):.2f}"))
+        lines += [f"{len(errors)} measurements against the rendered truth (absolute error, mm and deg).", ""]
+        lines += _table(["pallet_in_fork", "median", "95th percentile", "max"], stats)
+    lines += [f"![measurement error]({plots['error']})", "", "## Clearance", "", f"![clearance]({plots['clearance']})"]
+    lines += ["", "## Cycle times", "", f"![cycle times]({plots['cycle']})", ""]
+    return "\n".join(lines)
+
+
+def write_report(folder: Path) -> dict[str, Any]:
+    """Write ``report.md`` and its PNG plots into the campaign ``folder``; the campaign's figures and the
+    files written."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError(f"{folder}: not a campaign folder (agf simulate --out writes one)")
+    results = read_results(folder)
+    meta_path = folder / CAMPAIGN_FILE
+    try:
+        meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {}
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{meta_path}: not JSON ({exc.msg})") from exc
+    plots = {
+        "error": _error_plot(measurement_errors(results), folder / "measurement_error.png"),
+        "clearance": _clearance_plot(results, folder / "clearance.png"),
+        "cycle": _cycle_plot(results, folder / "cycle_times.png"),
+    }
+    report = folder / REPORT_FILE
+    report.write_text(_markdown(folder, meta, results, plots))
+    figures = campaign_figures(results)
+    return {**figures, "report": str(report), "plots": [str(folder / p) for p in plots.values()]}

@@ -1,0 +1,44 @@
+"""A light pick for campaign and report tests: the real campaign scene of (seed, index), a measurement
+error drawn from (seed, index), and an outcome by rule, in the result keys the simulated world writes.
+Module level, so process pools and Ray workers can import it."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from agf.paths import repo_path
+from agf.scene import load_scene
+from drivers.sim.world import campaign_scene, scene_summary
+
+BASE = load_scene(repo_path("configs/scenes/pick.yaml"))
+
+
+def light_pick(seed: int, index: int, interrupt_at: int | None = None) -> dict:
+    """Refused when the pallet is more than 250 mm below the forks (they hide its pocket edges), faulted
+    on every 7th run, else inserted. ``interrupt_at``: this run stops the campaign as Ctrl-C does."""
+    if index == interrupt_at:
+        raise KeyboardInterrupt
+    scene = campaign_scene(BASE, seed, index)
+    truth = scene.pallet.in_fork.to_dict()
+    rng = np.random.default_rng([seed, index, 1])
+    measured = {k: v + rng.normal(0.0, 2.0 if k.endswith("_mm") else 0.1) for k, v in truth.items()}
+    outcome = "refused" if truth["z_mm"] < -250 else "faulted" if index % 7 == 6 else "inserted"
+    reason = {
+        "refused": f"measuring: the forks hide {40 + index}% of the pallet's pocket edges from the camera",
+        "faulted": "aligning: drive fault on reach: over-temperature",
+        "inserted": None,
+    }[outcome]
+    return {
+        "ok": outcome == "inserted",
+        "outcome": outcome,
+        "state": "done" if outcome == "inserted" else "fault",
+        "reason": reason,
+        "collision": False,
+        "min_clearance_mm": float(8.0 + rng.uniform(0, 10)) if outcome != "refused" else None,
+        "cycle_s": float(20 + rng.uniform(0, 5)),
+        "durations_s": {"acquiring": 0.5, "measuring": 1.0, "aligning": float(5 + rng.uniform(0, 2))},
+        "measured": [measured] if outcome != "refused" else [],
+        "truth": [truth] if outcome != "refused" else [],
+        "scene": scene_summary(scene),
+        "viewing_moves": int(truth["z_mm"] < -200),
+    }

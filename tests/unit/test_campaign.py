@@ -1,0 +1,149 @@
+"""Campaigns: results streamed per pick, resumed after an interruption, the same on a process pool and
+on Ray; each pick reproducible from (seed, run index) alone."""
+
+from __future__ import annotations
+
+import functools
+import json
+import sys
+from types import SimpleNamespace
+
+import pytest
+
+from agf.cli import EXIT_UNAVAILABLE, EXIT_USAGE, main
+from agf.errors import InputError, NotAvailableError
+from agf.report import RESULTS_FILE, read_results
+from drivers.sim.campaign import CampaignInterrupted, PoolBackend, make_backend, run_campaign
+from drivers.sim.world import campaign_scene, pick_outcome, scene_summary
+from tests.unit.campaign_picks import BASE, light_pick
+
+IDENTITY = {"scene": None, "random": 12, "seed": 5}
+
+
+def campaign(folder, pick=None, *, resume=False, backend=None, indices=range(12)):
+    return run_campaign(
+        pick or functools.partial(light_pick, 5),
+        list(indices),
+        IDENTITY,
+        out=folder,
+        backend=backend or PoolBackend(2),
+        resume=resume,
+        progress=False,
+    )
+
+
+def without_wall_time(results):
+    return [{k: v for k, v in r.items() if k != "wall_s"} for r in results]
+
+
+def test_a_pick_scene_depends_on_its_seed_and_run_index_only():
+    def scene(seed, index):
+        return scene_summary(campaign_scene(BASE, seed, index))
+
+    alone = scene(7, 3)
+    assert [scene(7, k) for k in range(5)][3] == alone
+    assert scene(7, 4) != alone and scene(8, 3) != alone
+
+
+def test_results_stream_one_line_per_pick(tmp_path):
+    summary = campaign(tmp_path / "c")
+    lines = (tmp_path / "c" / RESULTS_FILE).read_text().splitlines()
+    assert len(lines) == 12 and sorted(json.loads(line)["run"] for line in lines) == list(range(12))
+    results = read_results(tmp_path / "c")
+    assert summary["runs"] == 12
+    assert summary["inserted"] + summary["refused"] + summary["faulted"] == 12
+    assert summary["inserted"] == sum(r["outcome"] == "inserted" for r in results)
+    assert {f["run"] for f in summary["failures"]} == {r["run"] for r in results if not r["ok"]}
+    assert all(f["reason"] for f in summary["failures"])
+
+
+def test_an_interrupted_campaign_keeps_its_results_and_resumes_to_the_same_ones(tmp_path):
+    whole = tmp_path / "whole"
+    campaign(whole)
+    cut = tmp_path / "cut"
+    with pytest.raises(CampaignInterrupted, match="after 4 of 12 picks.*--resume"):
+        campaign(cut, functools.partial(light_pick, 5, interrupt_at=4), backend=PoolBackend(1))
+    assert [r["run"] for r in read_results(cut)] == [0, 1, 2, 3]
+    with (cut / RESULTS_FILE).open("a") as f:
+        f.write('{"run": 4, "ok": tr')  # a write the interruption cut short
+    summary = campaign(cut, resume=True)
+    assert summary["runs"] == 12
+    assert without_wall_time(read_results(cut)) == without_wall_time(read_results(whole))
+
+
+def test_resume_refuses_another_campaigns_folder_and_a_new_campaign_refuses_a_used_one(tmp_path):
+    campaign(tmp_path / "c", indices=range(2))
+    with pytest.raises(InputError, match="already holds"):
+        campaign(tmp_path / "c", indices=range(2))
+    with pytest.raises(InputError, match="seed: 5 there, 6 now"):
+        run_campaign(
+            light_pick,
+            [0],
+            {**IDENTITY, "seed": 6},
+            out=tmp_path / "c",
+            backend=PoolBackend(1),
+            resume=True,
+            progress=False,
+        )
+
+
+def test_a_pick_that_crashes_is_a_fault_with_its_reason(tmp_path):
+    def crash(index):
+        raise ZeroDivisionError("division by zero")
+
+    summary = campaign(tmp_path / "c", crash, backend=PoolBackend(1), indices=[0])
+    assert summary["faulted"] == 1 and "crashed: ZeroDivisionError" in summary["failures"][0]["reason"]
+
+
+def test_ray_backend_without_ray_is_not_available(monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "ray", None)
+    with pytest.raises(NotAvailableError, match=r"pip install -e '.\[cluster\]'"):
+        make_backend("ray")
+    assert main(["simulate", "--random", "1", "--backend", "ray", "--json"]) == EXIT_UNAVAILABLE
+    assert "needs Ray" in json.loads(capsys.readouterr().out)["error"]
+
+
+def test_resume_needs_the_campaign_folder_and_address_needs_ray(capsys):
+    assert main(["simulate", "--random", "2", "--resume", "--json"]) == EXIT_USAGE
+    assert "--out CAMPAIGN_DIR" in json.loads(capsys.readouterr().out)["error"]
+    with pytest.raises(InputError, match="--backend ray"):
+        make_backend("pool", address="auto")
+
+
+def test_ray_gives_the_process_pools_results(tmp_path):
+    pytest.importorskip("ray", reason="Ray is an optional extra: pip install -e '.[cluster]'")
+    campaign(tmp_path / "pool")
+    summary = campaign(tmp_path / "ray", backend=make_backend("ray", jobs=2))
+    assert summary["backend"] == "local Ray"
+    assert without_wall_time(read_results(tmp_path / "ray")) == without_wall_time(read_results(tmp_path / "pool"))
+
+
+@pytest.mark.parametrize(
+    ("ok", "reason", "refusal", "plan_safe", "clearance", "outcome"),
+    [
+        (True, None, None, True, 0.02, "inserted"),
+        (True, None, None, True, -0.001, "collided"),
+        (
+            False,
+            "measuring: the forks hide 37% of the pocket edges",
+            "the forks hide 37% of the pocket edges",
+            None,
+            float("inf"),
+            "refused",
+        ),
+        (False, "planning: insertion refused: height margin -3 mm", None, False, 0.2, "refused"),
+        (
+            False,
+            "aligning: drive fault on lift: following error",
+            "an earlier refusal, then a viewing pose",
+            True,
+            0.1,
+            "faulted",
+        ),
+        (False, "acquiring: simulated camera: no frame within 60.00 s", None, None, float("inf"), "faulted"),
+    ],
+)
+def test_a_pick_outcome_is_what_ended_it(ok, reason, refusal, plan_safe, clearance, outcome):
+    plan = None if plan_safe is None else SimpleNamespace(safe=plan_safe)
+    result = SimpleNamespace(ok=ok, reason=reason, plan=plan)
+    assert pick_outcome(result, SimpleNamespace(min_clearance=clearance, refusal=refusal)) == outcome

@@ -1,0 +1,123 @@
+"""``agf report``: the Markdown and plots of a campaign folder written by the campaign machinery (with
+the light pick of campaign_picks.py), and the checks on what a results file holds."""
+
+from __future__ import annotations
+
+import functools
+import json
+import re
+from collections import Counter
+
+import cv2
+import pytest
+
+from agf.cli import EXIT_OK, EXIT_USAGE, main
+from agf.errors import InputError
+from agf.report import RESULTS_FILE, read_results, write_report
+from drivers.sim.campaign import PoolBackend, ResultsFile, run_campaign
+from tests.unit.campaign_picks import light_pick
+
+RUNS, SEED = 40, 11
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory):
+    """A 40-pick campaign; two failures carry a recorder log, one of them deleted since."""
+    folder = tmp_path_factory.mktemp("campaign") / "c"
+    run_campaign(
+        functools.partial(light_pick, SEED),
+        list(range(RUNS)),
+        {"scene": None, "random": RUNS, "seed": SEED},
+        out=folder,
+        backend=PoolBackend(2),
+        progress=False,
+    )
+    records = read_results(folder)
+    failed = [r for r in records if not r["ok"]]
+    assert len(failed) >= 2, "the light pick's rules give refusals and faults on this seed"
+    logs = folder / "logs"
+    logs.mkdir()
+    (logs / "pick-kept.mcap").write_bytes(b"\x89MCAP0\r\n")
+    failed[0]["log"], failed[1]["log"] = str(logs / "pick-kept.mcap"), str(logs / "pick-deleted.mcap")
+    (folder / RESULTS_FILE).unlink()
+    for record in records:
+        ResultsFile(folder).append(record)
+    return folder
+
+
+def table_rows(markdown: str, heading: str) -> list[list[str]]:
+    section = markdown.split(f"## {heading}\n", 1)[1].split("\n## ", 1)[0]
+    rows = [line for line in section.splitlines() if line.startswith("| ") and not line.startswith("|---")]
+    return [[c.strip() for c in row.strip("|").split(" | ")] for row in rows[1:]]
+
+
+def test_the_report_counts_outcomes_and_tables_reasons(folder):
+    result = write_report(folder)
+    records = read_results(folder)
+    markdown = (folder / "report.md").read_text()
+    counts = Counter(r["outcome"] for r in records)
+    outcomes = {row[0]: int(row[1]) for row in table_rows(markdown, "Outcomes")}
+    assert outcomes == {o: counts[o] for o in ("inserted", "refused", "faulted", "collided")}
+    assert result["inserted"] == counts["inserted"] and result["runs"] == RUNS
+    refusals = table_rows(markdown, "Refused: reasons")
+    assert [row[0] for row in refusals] == ["measuring: the forks hide #% of the pallet's pocket edges from the camera"]
+    assert int(refusals[0][1]) == counts["refused"]
+    viewed = sum(r["viewing_moves"] > 0 for r in records)
+    assert f"measure again): {viewed}," in markdown and result["viewing_moves"] == viewed
+    failures = table_rows(markdown, "Failures")
+    assert sorted(int(row[0]) for row in failures) == [r["run"] for r in records if not r["ok"]]
+
+
+def test_failure_rows_link_their_recorder_file_when_there_is_one(folder):
+    write_report(folder)
+    links = {int(row[0]): row[-1] for row in table_rows((folder / "report.md").read_text(), "Failures")}
+    with_log = [r for r in read_results(folder) if r.get("log")]
+    kept, deleted = with_log[0]["run"], with_log[1]["run"]
+    assert links[kept] == "[pick-kept.mcap](logs/pick-kept.mcap)"
+    assert links[deleted].endswith("pick-deleted.mcap (missing)")
+    assert sum(link == "-" for link in links.values()) == len(links) - 2
+
+
+def test_the_plots_are_written_and_linked(folder):
+    result = write_report(folder)
+    markdown = (folder / "report.md").read_text()
+    assert len(result["plots"]) == 3
+    for path in result["plots"]:
+        image = cv2.imread(path)
+        assert image is not None and image.shape[0] > 300 and image.std() > 10
+    linked = re.findall(r"!\[[^]]*\]\(([^)]+)\)", markdown)
+    assert sorted(linked) == sorted(p.rsplit("/", 1)[-1] for p in result["plots"])
+
+
+def test_agf_report_on_the_command_line(folder, tmp_path, capsys):
+    assert main(["report", str(folder), "--json"]) == EXIT_OK
+    out = json.loads(capsys.readouterr().out)
+    assert out["report"].endswith("report.md") and out["runs"] == RUNS
+    assert main(["report", str(tmp_path / "none"), "--json"]) == EXIT_USAGE
+    assert "not a campaign folder" in json.loads(capsys.readouterr().out)["error"]
+
+
+@pytest.mark.parametrize(
+    ("line", "message"),
+    [
+        ('{"run": 0, "ok": true, "collision": false}', "missing key 'outcome'"),
+        ('{"run": 0, "ok": "yes", "outcome": "inserted", "collision": false}', "ok: expected bool"),
+        ('{"run": 0, "ok": false, "outcome": "lost", "collision": false}', "outcome: expected one of"),
+        ('{"run": 0, "ok": true, "outcome": "inserted", "collision": false, "measured": {}}', "measured: expected"),
+        ("not json", "not JSON"),
+    ],
+)
+def test_a_bad_results_line_names_the_file_line_and_key(tmp_path, line, message):
+    good = '{"run": 1, "ok": true, "outcome": "inserted", "collision": false}'
+    (tmp_path / RESULTS_FILE).write_text(f"{good}\n{line}\n")
+    with pytest.raises(InputError, match=rf"{RESULTS_FILE}:2: .*{re.escape(message)}"):
+        read_results(tmp_path)
+
+
+def test_an_unfinished_last_line_is_left_out_and_a_repeated_run_is_an_error(tmp_path):
+    good = '{"run": 1, "ok": true, "outcome": "inserted", "collision": false}'
+    (tmp_path / RESULTS_FILE).write_text(f'{good}\n{{"run": 2, "ok": tr')
+    assert [r["run"] for r in read_results(tmp_path)] == [1]
+    (tmp_path / RESULTS_FILE).write_text(f"{good}\n{good}\n")
+    with pytest.raises(InputError, match="run 1 appears twice"):
+        read_results(tmp_path)
