@@ -258,11 +258,6 @@ class PickController:
         self.machine.send(event)
         self.recorder.state(self._state(), event, reason)
 
-    def _read_frame(self) -> Frame:
-        frame = self.frames.read(self.config.timeouts["acquiring"])
-        self.recorder.frame(frame)
-        return frame
-
     def _measure(self, state: str, frame: Frame, prior: PalletMeasurement | None) -> PalletMeasurement:
         try:
             measurement = self._timed(self.measure, state, frame, prior)
@@ -302,7 +297,9 @@ class PickController:
         attempt = 1
         while True:
             try:
-                return self.frames.read(self.config.timeouts["acquiring"])
+                frame = self.frames.read(self.config.timeouts["acquiring"])
+                self.recorder.frame(frame)
+                return frame
             except FrameLost as exc:
                 if attempt >= self.config.frame_attempts:
                     raise FrameLost(f"{exc} ({attempt} reads, none usable)") from exc
