@@ -55,7 +55,7 @@ def measure_command(
         "loaded": m.loaded,
         "pallet_in_fork": pose_json(m.pallet_in_fork),
         "pallet_in_camera": pose_json(m.pallet_in_camera),
-        "scores": {"loaded": m.scores["loaded"], "unloaded": m.scores["unloaded"], "edges": m.scores["edges"]},
+        "scores": {"loaded": m.scores["loaded"], "unloaded": m.scores["unloaded"]},
         "uncertainty": {"z_mm": m.sigma_z * 1e3, "pitch_deg": math.degrees(m.sigma_pitch)},
         "insertion": _insertion_check(m, pallet, config),
         "timing_ms": dict(m.timing_ms),
