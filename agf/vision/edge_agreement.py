@@ -7,7 +7,8 @@ the pocket (foreign render loaded-front-up). A pose that is right puts *every* e
 image edge, the outline included: the face's bottom edge against the bed or floor, its top edge
 against the deck top or the load, its ends against whatever is beside it. This check looks for a
 significant step of either polarity (which side is brighter depends on the light) within a pixel or
-so of each predicted edge, group by group, and refuses the pose where a group is missing.
+so of each predicted edge, group by group, and refuses the pose when the groups agree too little on
+average, or when the face moved within its plane by a board or a block agrees better.
 """
 
 from __future__ import annotations
