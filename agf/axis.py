@@ -10,6 +10,7 @@ Units are SI: metres for linear axes, radians for tilt.
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import math
 import threading
@@ -50,6 +51,14 @@ class AxisLimits:
 
     def contains(self, position: float) -> bool:
         return self.minimum <= position <= self.maximum
+
+    def scaled(self, share: float) -> AxisLimits:
+        """These limits with velocity, acceleration and jerk cut to ``share`` (0..1] of theirs: what a
+        plan may ask, so that a drive that lost a cycle still has headroom to catch up."""
+        if not 0 < share <= 1:
+            raise ValueError(f"motion share must be in (0, 1], got {share}")
+        return dataclasses.replace(self, max_velocity=share * self.max_velocity,
+                                   max_acceleration=share * self.max_acceleration, max_jerk=share * self.max_jerk)
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -32,6 +31,10 @@ class PickSettings:
     # Plans use this share of each drive's velocity, acceleration and jerk limits, so that a late
     # control cycle never asks a drive for more than it can give (a following-error fault).
     motion_share: float = 0.8
+
+    def __post_init__(self) -> None:
+        if not 0 < self.motion_share <= 1:
+            raise ValueError(f"motion_share must be in (0, 1], got {self.motion_share}")
 
 
 def pick_settings_from_mapping(data: Any, where: str) -> PickSettings:
@@ -65,13 +68,7 @@ class PickPlanner:
         return plan_move(axes_now, target, self._motion_limits(), "phase")
 
     def _motion_limits(self) -> dict[str, AxisLimits]:
-        k = self.settings.motion_share
-        return {
-            name: dataclasses.replace(
-                a, max_velocity=k * a.max_velocity, max_acceleration=k * a.max_acceleration, max_jerk=k * a.max_jerk
-            )
-            for name, a in self.limits.items()
-        }
+        return {name: a.scaled(self.settings.motion_share) for name, a in self.limits.items()}
 
     def verify(self, measurement: PalletMeasurement, plan: InsertionPlan) -> str | None:
         """After aligning, the pallet should be where the plan put it relative to the aligned forks:

@@ -464,6 +464,7 @@ class Cia402Axis(Axis):
         self._silent = False  # the drive stopped answering: no orderly shutdown over SDO
         self._rpdo_lock = threading.Lock()  # RPDO1 is written by the caller and by the TPDO callback (PP)
         self._feedback_changed = threading.Condition()
+        self._heartbeat_arrived = threading.Event()
         od = load_object_dictionary(drive.eds, drive.node_id)
         self.node = BaseNode402(drive.node_id, od)
         net.network.add_node(self.node)
@@ -504,8 +505,23 @@ class Cia402Axis(Axis):
             pdo.callbacks.insert(0, self._check_length)  # before BaseNode402 decodes it
         node.tpdo[1].add_callback(self._on_tpdo)
         self._step = "NMT OPERATIONAL"
-        node.nmt.state = "OPERATIONAL"
+        self._go_operational(timeout)
         self._last_tpdo = None
+
+    def _go_operational(self, timeout: float) -> None:
+        """NMT start, confirmed by the drive's own heartbeat: the command is unacknowledged, so a lost
+        frame would leave the drive PRE-OPERATIONAL (no PDO ever) unless it is sent again."""
+        node = self.node
+        for _ in range(SDO_ATTEMPTS):
+            node.nmt.state = "OPERATIONAL"
+            for _ in range(2):  # the first heartbeat may have left before the command arrived
+                self._heartbeat_arrived.clear()
+                if not self._heartbeat_arrived.wait(timeout):
+                    raise NmtError(f"no heartbeat within {timeout} s")
+            if node.nmt.state == "OPERATIONAL":
+                return
+            logger.warning("axis %s: drive still %s after NMT start; sending it again", self.name, node.nmt.state)
+        raise NmtError(f"the drive stayed {node.nmt.state} after {SDO_ATTEMPTS} NMT start commands")
 
     def _write_optional(self, index: int, subindex: int, value: int) -> None:
         od = self.node.object_dictionary
@@ -734,6 +750,7 @@ class Cia402Axis(Axis):
     # -- callbacks (from the CAN notifier thread: never block, never SDO) -----------------------
     def _on_heartbeat(self, state: int) -> None:
         self._last_heartbeat = time.monotonic()
+        self._heartbeat_arrived.set()
         if state == 0 and self._supervised and self._fault is None:
             self._raise_fault("drive rebooted (boot-up message): its configuration and power state are lost")
 

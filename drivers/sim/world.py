@@ -79,6 +79,7 @@ class SimulatedWorld:
         self.camera = load_camera(scene.camera)
         self.mast = MastGeometry()
         self.pallet = load_pallets(config.vision.pallets)[scene.pallet.type]
+        self.pick_settings = pick_settings_from_mapping(config.sections.get("insertion"), f"{config.source}: insertion")
         self.network, self.axes = axes_from_config(
             config.sections["drives"], config.sections["bus"], f"{config.source}:", base_dir=config.source.parent,
             start_drives=drive_starter(config),
@@ -140,7 +141,8 @@ class SimulatedWorld:
         for axis in self.axes.values():
             axis.enable()
         now = self.positions()
-        motion = plan_move(now, target, {n: a.limits for n, a in self.axes.items()})
+        share = self.pick_settings.motion_share  # the headroom the pick's own plans keep
+        motion = plan_move(now, target, {n: a.limits.scaled(share) for n, a in self.axes.items()})
         self.network.stream(lambda t: motion.at(min(t, motion.duration)))  # from the SYNC thread
         deadline = time.monotonic() + 10 * motion.duration + 5.0  # SYNC time runs behind on a loaded CPU
         while time.monotonic() < deadline and any(abs(p - target[n]) > 1e-4 for n, p in self.positions().items()):
@@ -164,9 +166,8 @@ class SimulatedWorld:
                 self.measured_truths.append(self.frame_truths[frame.index - 1])
             return measurement
 
-        settings = pick_settings_from_mapping(self.config.sections.get("insertion"), f"{self.config.source}: insertion")
         planner = PickPlanner(
-            self.mast, self.config.forks, self.pallet, {n: a.limits for n, a in self.axes.items()}, settings
+            self.mast, self.config.forks, self.pallet, {n: a.limits for n, a in self.axes.items()}, self.pick_settings
         )
         timeouts = {**ControllerConfig().timeouts, "acquiring": 60.0, "measuring": 30.0, "verifying": 90.0}
         return PickController(

@@ -34,6 +34,7 @@ from drivers.cia402_axis import (
     emcy_name,
     load_object_dictionary,
 )
+from drivers.lossy_bus import LossyBus
 from drivers.sim.drive import SimDrive, start_simulated_drives
 
 REPO = Path(__file__).resolve().parents[2]
@@ -163,6 +164,36 @@ def test_missing_drive_is_a_named_startup_fault() -> None:
             net.add_axis(DriveSettings("lift", 12, DEFAULT_EDS, SCALE, LIMITS, 0.05), timeout=0.5)
     finally:
         net.close()
+
+
+class _FirstNmtStartLost(LossyBus):
+    """The master's first NMT start command never reaches the bus (CAN has no acknowledge for it)."""
+
+    lost_start = False
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if msg.arbitration_id == 0 and msg.data[0] == 0x01 and not self.lost_start:
+            self.lost_start = True
+            return
+        super().send(msg, timeout)
+
+
+def test_lost_nmt_start_is_sent_again() -> None:
+    """Regression: one lost NMT start left a drive PRE-OPERATIONAL, so enabling found no statusword
+    (the fault matrix's 1 % loss pick failed at start-up)."""
+    bus = {"interface": "virtual", "channel": f"nmt-start-{os.getpid()}"}
+    drive = SimDrive.open(3, open_bus(bus, "test"), eds=DEFAULT_EDS)
+    master = _FirstNmtStartLost(open_bus(bus, "test"))
+    net = Cia402Network(master, NetworkSettings())
+    try:
+        axis = net.add_axis(DriveSettings("lift", 3, DEFAULT_EDS, SCALE, LIMITS, 0.05))
+        net.start()
+        axis.enable()
+        assert master.lost_start and drive.node.nmt.state == "OPERATIONAL"
+        assert axis.feedback().state is AxisState.ENABLED
+    finally:
+        net.close()
+        drive.close()
 
 
 def test_orderly_close_leaves_the_drive_disabled_not_faulted() -> None:

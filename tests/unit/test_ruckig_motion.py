@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 
 from agf.axis import AxisLimits
+from agf.errors import ConfigError
 from agf.motion import plan_move
+from agf.planner import pick_settings_from_mapping
 
 LIMITS = {
     "lift": AxisLimits(0.0, 3.0, 0.4, 0.8, 4.0),
@@ -50,3 +52,18 @@ def test_sampled_trajectory_respects_velocity_acceleration_and_jerk():
 def test_target_outside_the_limits_is_refused_not_clamped():
     with pytest.raises(ValueError, match="outside its limits"):
         plan_move({"reach": 0.5}, {"reach": 1.5}, LIMITS)
+
+
+def test_scaled_limits_keep_the_stroke_and_cut_the_dynamics():
+    limits = AxisLimits(0.0, 3.0, 0.5, 1.0, 5.0)
+    cut = limits.scaled(0.8)
+    assert (cut.minimum, cut.maximum) == (0.0, 3.0)
+    assert (cut.max_velocity, cut.max_acceleration, cut.max_jerk) == pytest.approx((0.4, 0.8, 4.0))
+    for share in (0.0, 1.2, float("nan")):
+        with pytest.raises(ValueError, match="motion share"):
+            limits.scaled(share)
+
+
+def test_motion_share_out_of_range_is_a_named_config_error():
+    with pytest.raises(ConfigError, match=r"agf.yaml: insertion: motion_share must be in \(0, 1\], got 1.5"):
+        pick_settings_from_mapping({"motion_share": 1.5}, "agf.yaml: insertion")
