@@ -1,8 +1,10 @@
 """The model of a pallet's front face, built from the catalogue: where wood is and where pockets are.
 
 Everything is in frame P (DESIGN.md): the face is the plane x = 0, y left, z up, the origin at the
-centre of the face at pocket mid-height. Pockets are dark openings between bright wooden blocks and
-bands, which is what both the template match and the edge refinement look for.
+centre of the face at pocket mid-height. The wood of the face (blocks and deck boards, all facing the
+same way) is one surface and shades alike; the pockets are openings through it, darker or lighter
+than the wood by viewpoint and light. The region match and the edge refinement look for that, not
+for a given brightness.
 """
 
 from __future__ import annotations
@@ -43,21 +45,38 @@ class FaceModel:
         image[outside] = 0.5
         return image, y, z
 
-    def cells(self) -> tuple[Array, Array, Array]:
-        """The face as constant rectangles, which is all a template match at any scale needs.
+    def regions(self, bands: int) -> tuple[Array, Array, NDArray[np.int_]]:
+        """The face as constant rectangles, which is all a region match at any scale needs.
 
         Returns the rectangles' z edges (R + 1,) from the top down and y edges (C + 1,) from the left
-        (+y), the order in which :meth:`raster` runs, and their values (R, C): 1 wood, 0 pocket.
+        (+y), the order in which :meth:`raster` runs, and each rectangle's region (R, C): 0 wood, then
+        ``bands`` horizontal bands per pocket (with 3: 1, 2, 3 the first pocket's from the top, ...).
+
+        A pocket is split into bands because what it shows depends on the viewpoint and the light: its
+        shadowed ceiling, the bottom deck's lit top seen from above, the floor seen through it.
         """
         w = self.width / 2
-        z = np.unique(np.clip(np.r_[self.z_top, self.z_bottom, self.pockets[:, 2:].ravel()], self.z_bottom, self.z_top))
-        y = np.unique(np.clip(np.r_[w, -w, self.pockets[:, :2].ravel()], -w, w))
-        z, y = z[::-1], y[::-1]
-        zc, yc = (z[:-1] + z[1:]) / 2, (y[:-1] + y[1:]) / 2
-        values = np.ones((len(zc), len(yc)))
-        for y0, y1, z0, z1 in self.pockets:
-            values[np.ix_((zc > z0) & (zc < z1), (yc > y0) & (yc < y1))] = 0.0
-        return z, y, values
+        heights = [np.linspace(z0, z1, bands + 1) for *_, z0, z1 in self.pockets]
+        z = np.unique(np.clip(np.r_[self.z_top, self.z_bottom, np.ravel(heights)], self.z_bottom, self.z_top))[::-1]
+        y = np.unique(np.clip(np.r_[w, -w, self.pockets[:, :2].ravel()], -w, w))[::-1]
+        return z, y, self._region_of((z[:-1] + z[1:]) / 2, (y[:-1] + y[1:]) / 2, bands)
+
+    def region_raster(self, pixel: float, bands: int) -> tuple[NDArray[np.int_], Array, Array]:
+        """:meth:`regions` sampled at ``pixel`` m per pixel (rows from the top, columns from +y), with
+        the pixel-centre y and z (m)."""
+        y = np.arange(self.width / 2 - pixel / 2, -self.width / 2, -pixel)
+        z = np.arange(self.z_top - pixel / 2, self.z_bottom, -pixel)
+        return self._region_of(z, y, bands), y, z
+
+    def _region_of(self, z: Array, y: Array, bands: int) -> NDArray[np.int_]:
+        """Region (len(z), len(y)) of the face points at heights ``z`` and sideways ``y`` (m)."""
+        zz, yy = np.meshgrid(z, y, indexing="ij")
+        region = np.zeros(zz.shape, int)
+        for k, (y0, y1, z0, z1) in enumerate(self.pockets):
+            band = np.floor((z1 - zz) / (z1 - z0) * bands).astype(int)
+            inside = (yy > y0) & (yy < y1) & (zz > z0) & (zz < z1)
+            region[inside] = 1 + k * bands + np.clip(band[inside], 0, bands - 1)
+        return region
 
     def edge_points(self, spacing: float, inset: float = 0.012) -> tuple[Array, Array, NDArray[np.int_]]:
         """Points (N, 3) on the pocket boundaries, unit normals (N, 3) pointing from wood into the pocket,

@@ -48,6 +48,10 @@ class MeasureConfig:
     pitch: PitchConfig = field(default_factory=PitchConfig)
     edges: EdgeAgreementConfig = field(default_factory=EdgeAgreementConfig)
     iterations: int = 6
+    # The face is searched with these similarities in turn (PoseSearchConfig.similarity): first the
+    # paper's correlation with dark pockets, then, when that measurement fails, the region match that
+    # does not ask which is brighter (pockets lit from behind or seen into from above).
+    similarities: tuple[str, ...] = ("correlation", "regions")
     # Pose and pitch agree when an iteration moves the pitch by less than this; re-fits jitter by about
     # 0.02 deg, so a tighter value only loops (simulated picks failed on 0.01 deg).
     pitch_tolerance: float = math.radians(0.03)
@@ -107,8 +111,7 @@ def measure_pallet(
     gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
     gray_f = gray.astype(np.float32)  # the pose search's working copy, made once for all its calls
     face = face_model_from_pallet(pallet)
-    # Searched again near a pose of this frame: its rivals were judged in the wide search, so one candidate.
-    narrow = dataclasses.replace(config.pose, prior_window=0.04, prior_yaw_window=math.radians(2), candidates=1)
+    search = narrow = config.pose  # the pose search of the current attempt; set for each similarity below
     seen: dict[str, Any] = {}  # the first pose and evidence, for a refusal's Findings
 
     def pose_at(near: Transform | None, pitch: float, search: PoseSearchConfig) -> PoseEstimate:
@@ -127,12 +130,12 @@ def measure_pallet(
         pitch, a steeply seen pallet matched 230 mm off along the line of sight with a margin of 0.03
         (paper scene unloaded-high-rear-up); refined from there it moved 60 mm and stopped 170 mm off,
         while the search found the face within 3 mm."""
-        if first.margin >= config.pose.min_margin:
+        if first.margin >= search.min_margin:
             t = time.perf_counter()
             try:
                 refined = refine_pallet_pose(
                     gray_f, camera, camera_in_fork, face, pose.pallet_in_fork, pitch=pitch, forks=forks,
-                    config=config.pose,
+                    config=search,
                 )
             except MeasurementError:
                 refined = None
@@ -155,7 +158,7 @@ def measure_pallet(
         return {"loaded": loaded, "unloaded": unloaded}
 
     def converged(pitch: float) -> tuple[PoseEstimate, PitchEvidence, dict[str, PitchEvidence]]:
-        first = pose = pose_at(prior, pitch, config.pose)
+        first = pose = pose_at(prior, pitch, search)
         step = swing = 0.0
         evidence = None
         for _ in range(config.iterations):
@@ -169,7 +172,7 @@ def measure_pallet(
                 chosen = dataclasses.replace(chosen, sigma=max(chosen.sigma, swing / 2))
                 # The narrow re-searches see no rivals; the wide first search did, at the assumed pitch.
                 pose = dataclasses.replace(pose, margin=min(pose.margin, pose.score - (first.score - first.margin)))
-                check_pose_estimate(pose, camera, face, config.pose)
+                check_pose_estimate(pose, camera, face, search)
                 return pose, chosen, evidence
             pose = pose_again(pose, pitch, first)
         raise MeasurementError(f"pose and pitch did not agree after {config.iterations} iterations")
@@ -189,8 +192,12 @@ def measure_pallet(
         return dataclasses.replace(pose, pallet_in_fork=moved, pallet_in_camera=camera_in_fork.inverse() @ moved)
 
     starts = [prior.euler[1]] if prior is not None else [0.0, -volume.pitch_max / 2, volume.pitch_max / 2]
+    attempts = [(similarity, assumed) for similarity in config.similarities for assumed in starts]
     failures: list[str] = []
-    for assumed in starts:
+    for similarity, assumed in attempts:
+        search = dataclasses.replace(config.pose, similarity=similarity)
+        # Searched again near a pose of this frame: its rivals were judged in the wide search, so one candidate.
+        narrow = dataclasses.replace(search, prior_window=0.04, prior_yaw_window=math.radians(2), candidates=1)
         try:
             pose, chosen, evidence = converged(assumed)
             if chosen.hypothesis == "unloaded":
@@ -203,7 +210,8 @@ def measure_pallet(
             failures.append(str(exc))
     else:
         others = sorted(set(failures[1:]) - {failures[0]})
-        also = f" (with the pose searched at pitch +-{math.degrees(volume.pitch_max / 2):.1f} deg too" if others else ""
+        also = (f" (with the pose searched at pitch +-{math.degrees(volume.pitch_max / 2):.1f} deg and by "
+                f"{' and '.join(config.similarities[1:])} too" if others else "")
         raise MeasurementError(
             failures[0] + (also + ": " + "; ".join(others) + ")" if others else ""),
             found=Findings(seen.get("pose"), seen.get("evidence")),

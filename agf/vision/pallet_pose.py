@@ -26,6 +26,7 @@ import functools
 import math
 import time
 from dataclasses import dataclass, field
+from typing import Literal, Protocol
 
 import cv2
 import numpy as np
@@ -57,12 +58,24 @@ class PoseSearchConfig:
     prior_window: float = 0.3  # m around a prior in x, y, z
     prior_yaw_window: float = math.radians(10.0)
     candidates: int = 3
+    # What the face is matched by: "correlation" with a raster of dark pockets in lit wood (the paper's
+    # measure), or "regions", which asks only that the wood is one surface and each of the pocket's
+    # ``pocket_bands`` horizontal bands differs from it (the pocket's shadowed ceiling, the bottom deck
+    # seen from above and the floor behind differ by viewpoint and light).
+    similarity: Literal["correlation", "regions"] = "correlation"
+    pocket_bands: int = 3
     min_score: float = 0.5
     min_margin: float = 0.1
     max_residual_px: float = 1.5
     max_occluded: float = 0.25
     edge_spacing: float = 0.006
     radii_px: tuple[float, ...] = (4.0, 3.0, 2.0, 2.0, 2.0)
+
+    def __post_init__(self) -> None:
+        if self.similarity not in ("correlation", "regions"):
+            raise ValueError(f"similarity must be 'correlation' or 'regions', got {self.similarity!r}")
+        if self.pocket_bands < 1:
+            raise ValueError(f"pocket_bands must be at least 1, got {self.pocket_bands}")
 
 
 @dataclass(frozen=True)
@@ -142,19 +155,15 @@ def estimate_pallet_pose(
         pitch = prior.euler[1] if prior is not None else 0.0
     box = _search_box(volume, prior, pitch, config)
     pyramid = _pyramid(gray, max(config.pyramid_level, config.fine_level))
+    matcher = _matcher(face, config)
     coarse = _scan(
-        pyramid[config.pyramid_level],
-        config.pyramid_level,
-        config.coarse_pixel,
-        1.0,
-        camera,
-        camera_in_fork,
-        face,
-        box,
+        pyramid[config.pyramid_level], config.pyramid_level, config.coarse_pixel, 1.0, camera, camera_in_fork, face,
+        box, matcher,
     )
     fine_image = pyramid[config.fine_level]
     candidates = [
-        _rescan(fine_image, camera, camera_in_fork, face, params, config) for _, params in coarse[: config.candidates]
+        _rescan(fine_image, camera, camera_in_fork, face, params, config, matcher)
+        for _, params in coarse[: config.candidates]
     ]
     candidates = sorted([c for c in candidates if c is not None], key=lambda c: -c[0]) + coarse[config.candidates :]
     timing["coarse"] = (time.perf_counter() - start) * 1e3
@@ -212,7 +221,7 @@ def _fine(gray, camera, camera_in_fork, face: FaceModel, starts: list[_Params], 
     fits = [fit for fit in fits if fit is not None]
     if not fits:
         raise MeasurementError("the pallet front face could not be fitted to image edges")
-    scores = _face_similarities(gray, camera, camera_in_fork, face, [fit[0] for fit in fits])
+    scores = _face_similarities(gray, camera, camera_in_fork, face, [fit[0] for fit in fits], config)
     return sorted([(score, *fit) for score, fit in zip(scores, fits, strict=True)], key=lambda f: -f[0])
 
 
@@ -274,13 +283,12 @@ def _scan(
     camera_in_fork: Transform,
     face: FaceModel,
     box: _Box,
+    matcher: _Matcher,
 ) -> list[tuple[float, _Params]]:
-    """(score, params) of the best normalised-correlation peaks over ``box``, best first, one per place."""
+    """(score, params) of the best peaks of ``matcher``'s score over ``box``, best first, one per place."""
     fork_in_camera = camera_in_fork.inverse()
     corners = _corners(box.low, box.high)
     slack = _corners(box.low - _BOX_SLACK, box.high + _BOX_SLACK)
-    cells = face.cells()
-    weights = _corner_weights(cells[2])
     found: list[tuple[float, _Params]] = []
     for yaw in box.yaws:
         R_cv = fork_in_camera.rotation @ matrix_from_euler(yaw, box.pitch, 0.0)
@@ -293,7 +301,7 @@ def _scan(
         bounds_v = (*reach_v[:, 1:].min(axis=0).tolist(), *reach_v[:, 1:].max(axis=0).tolist())
         step = scale_step_px / face.width
         scales = np.arange(f / np.max(origins_v[:, 0]), f / np.min(origins_v[:, 0]) + step / 2, step)
-        peaks = _peaks(integrals, _templates(face, cells, 1.0 / scales), weights, scales, f, window, bounds_v)
+        peaks = _peaks(integrals, _templates(face, matcher.edges, 1.0 / scales), matcher, scales, f, window, bounds_v)
         found += _in_box(peaks, R_cv, camera_in_fork, yaw, box)
     found.sort(key=lambda c: -c[0])
     return _distinct(found, face, camera_in_fork.translation)
@@ -304,14 +312,15 @@ def _corners(low: Array, high: Array) -> Array:
     return np.array([[x, y, z] for x in (low[0], high[0]) for y in (low[1], high[1]) for z in (low[2], high[2])])
 
 
-def _rescan(fine_image, camera, camera_in_fork, face, params: _Params, config: PoseSearchConfig):
+def _rescan(fine_image, camera, camera_in_fork, face, params: _Params, config: PoseSearchConfig, matcher: _Matcher):
     """The best (score, params) of a finer scan around one coarse candidate, or None."""
     window = np.array(config.fine_window)
     centre = np.array([params.x, params.y, params.z])
     yaws = (params.yaw - config.yaw_step / 2, params.yaw, params.yaw + config.yaw_step / 2)
     box = _Box(centre - window, centre + window, yaws, params.pitch)
     found = _scan(
-        fine_image, config.fine_level, config.fine_pixel, config.fine_scale_step_px, camera, camera_in_fork, face, box
+        fine_image, config.fine_level, config.fine_pixel, config.fine_scale_step_px, camera, camera_in_fork, face, box,
+        matcher,
     )
     return found[0] if found else None
 
@@ -354,46 +363,31 @@ def _view_map(camera: CameraModel, R_key: tuple, window: tuple, f: float, lvl: i
 
 @dataclass(frozen=True)
 class _Template:
-    """The face raster (:meth:`FaceModel.raster`) at one scale, as the cells of :meth:`FaceModel.cells`."""
+    """The face's cells (:meth:`FaceModel.regions`) at one scale, laid out as :meth:`FaceModel.raster`."""
 
     rows: NDArray[np.int_]  # cell boundaries (R + 1,) in pixels, from 0 to the raster's height
     cols: NDArray[np.int_]  # (C + 1,), from 0 to its width
     height: int
     width: int
-    mean: float
-    norm: float  # of the raster less its mean
     y_mid: float  # face y and z (m) at the raster's centre
     z_mid: float
 
 
-def _templates(face: FaceModel, cells: tuple[Array, Array, Array], pixels: Array) -> list[_Template]:
-    """The face raster at each of ``pixels`` (m), laid out as :meth:`FaceModel.raster` lays it out (pixel
-    centres from half a pixel inside the top-left corner; a centre exactly on an edge may fall on the
-    other side), for all sizes at once."""
-    z_edges, y_edges, values = cells
+def _templates(face: FaceModel, edges: tuple[Array, Array], pixels: Array) -> list[_Template]:
+    """The face's cells (z and y ``edges``, m) at each of ``pixels`` (m), laid out as
+    :meth:`FaceModel.raster` lays it out (pixel centres from half a pixel inside the top-left corner; a
+    centre exactly on an edge may fall on the other side), for all sizes at once."""
+    z_edges, y_edges = edges
     p = pixels[:, None]
     y0, z0 = face.width / 2 - p / 2, face.z_top - p / 2  # the first pixel centres
     width = np.ceil((-face.width / 2 - y0) / -p)
     height = np.ceil((face.z_bottom - z0) / -p)
     cols = np.clip(np.ceil((y0 - y_edges) / p), 0, width).astype(int)  # pixels beyond each edge
     rows = np.clip(np.ceil((z0 - z_edges) / p), 0, height).astype(int)
-    area = np.diff(rows)[:, :, None] * np.diff(cols)[:, None, :]
-    mean = np.sum(values * area, axis=(1, 2)) / (width * height)[:, 0]
-    norm = np.sqrt(np.sum((values - mean[:, None, None]) ** 2 * area, axis=(1, 2)))
     y_mid, z_mid = y0[:, 0] - (width[:, 0] - 1) * pixels / 2, z0[:, 0] - (height[:, 0] - 1) * pixels / 2
     sizes = height[:, 0].astype(int).tolist(), width[:, 0].astype(int).tolist()
-    fields = rows, cols, *sizes, mean.tolist(), norm.tolist(), y_mid.tolist(), z_mid.tolist()
+    fields = rows, cols, *sizes, y_mid.tolist(), z_mid.tolist()
     return [_Template(*t) for t in zip(*fields, strict=True)]
-
-
-def _corner_weights(values: Array) -> tuple[NDArray[np.int_], NDArray[np.int_], Array, float]:
-    """Cell corners (row and column edge indices) and weights of the face raster's correlation, and the
-    value of its corner cell (see :func:`_match`)."""
-    weights = np.diff(np.diff(np.pad(values, 1), axis=0), axis=1)  # mixed second difference
-    corner = weights[0, 0]
-    weights[[0, 0, -1, -1], [0, -1, 0, -1]] -= corner * np.array([1, -1, -1, 1])
-    a, b = np.nonzero(weights)
-    return a, b, weights[a, b], corner
 
 
 @dataclass(frozen=True)
@@ -426,18 +420,20 @@ def _span(integrals: NDArray, template: _Template, scale: float, window, bounds_
     return _Span(top, left, shape, (r0 - top, r1 - top, c0 - left, c1 - left))
 
 
-def _peaks(integrals, templates: list[_Template], weights, scales: Array, f: float, window, bounds_v) -> Array:
-    """The (up to 4) best local maxima of the correlation at each scale that may put the face in the box:
+def _peaks(
+    integrals, templates: list[_Template], matcher: _Matcher, scales: Array, f: float, window, bounds_v
+) -> Array:
+    """The (up to 4) best local maxima of the match at each scale that may put the face in the box:
     (K, 4) rows of score and face origin (view frame, m), scale by scale, best first within each.
 
-    The correlation is computed only where :func:`_span` says (at one depth the box covers a fraction of
+    The match is computed only where :func:`_span` says (at one depth the box covers a fraction of
     the view).
     """
     spans = [_span(integrals, t, scale, window, bounds_v) for t, scale in zip(templates, scales, strict=True)]
     live = [k for k, span in enumerate(spans) if span is not None]
     if not live:
         return np.zeros((0, 4))
-    stack, inner = _responses(integrals, [templates[k] for k in live], weights, [spans[k] for k in live])
+    stack, inner = _responses(integrals, [templates[k] for k in live], matcher, [spans[k] for k in live])
     n, r, c, score = _best_maxima(stack, inner, 4)
     table = np.array([[scales[k], spans[k].top, spans[k].left, *_layout(templates[k])] for k in live])
     scale, top, left, height, width, y_mid, z_mid = table[n].T
@@ -452,8 +448,8 @@ def _layout(template: _Template) -> tuple[int, int, float, float]:
     return template.height, template.width, template.y_mid, template.z_mid
 
 
-def _responses(integrals, templates: list[_Template], weights, spans: list[_Span]) -> tuple[NDArray, NDArray]:
-    """The scales' correlations (S, R, C), each from the top left of its slice and below any score (-2)
+def _responses(integrals, templates: list[_Template], matcher: _Matcher, spans: list[_Span]) -> tuple[NDArray, NDArray]:
+    """The scales' matches (S, R, C), each from the top left of its slice and below any score (-2)
     beyond its span, and where each slice's inner rectangle is. The last two rows of every slice are
     padding, so that a 5 x 5 neighbourhood never reaches into the next."""
     rows = max(span.shape[0] for span in spans) + 2
@@ -461,7 +457,7 @@ def _responses(integrals, templates: list[_Template], weights, spans: list[_Span
     stack = np.full((len(spans), rows, cols), -2.0, np.float32)
     inner = np.zeros(stack.shape, bool)
     for n, (template, span) in enumerate(zip(templates, spans, strict=True)):
-        response = _match(integrals[:, span.top :, span.left :], template, weights, span.shape)
+        response = matcher.match(integrals[:, span.top :, span.left :], template, span.shape)
         stack[n, : span.shape[0], : span.shape[1]] = response
         r0, r1, c0, c1 = span.inner
         inner[n, r0:r1, c0:c1] = True
@@ -498,29 +494,139 @@ def _offsets(first: float, last: float, count: int) -> tuple[int, int]:
     return max(math.floor(low), 0), min(math.ceil(high) + 1, count)
 
 
-def _match(integrals: NDArray, template: _Template, weights, shape: tuple[int, int]) -> NDArray[np.float32]:
-    """``cv2.matchTemplate(view, raster, cv2.TM_CCOEFF_NORMED)`` at the first ``shape`` offsets, from the
-    view's integral images (sums and sums of squares, stacked; sliced to start at the first offset).
+class _Matcher(Protocol):
+    """A score of the face at every offset of a virtual view, from the view's integral images."""
 
-    The raster is a few constant cells, so its correlation at every offset is a few integral-image
-    lookups at the cell corners (where the raster's mixed second difference is nonzero) instead of a
-    DFT of the view: several times faster, and equal to 1e-4. The window's own corners give the
-    window sum times the corner cell's value, which the normalisation needs anyway.
-    """
-    rows, cols, h, w = template.rows, template.cols, template.height, template.width
+    edges: tuple[Array, Array]  # the face's cell edges, z from the top and y from the left (m)
+
+    def match(self, integrals: NDArray, template: _Template, shape: tuple[int, int]) -> NDArray[np.float32]:
+        """The score at the first ``shape`` offsets (integral images of sums and squares, stacked)."""
+
+
+def _matcher(face: FaceModel, config: PoseSearchConfig) -> _Matcher:
+    if config.similarity == "correlation":
+        return _Correlation.of(face)
+    return _RegionMatch.of(face, config.pocket_bands)
+
+
+def _window_sums(integrals: NDArray, template: _Template, shape: tuple[int, int]) -> tuple[NDArray, NDArray]:
+    """The intensity sum and sum of squares of the template-sized window at the first ``shape`` offsets."""
+    h, w = template.height, template.width
     out_rows, out_cols = shape
     ends = integrals[:, h : h + out_rows]
     windows = ends[:, :, w : w + out_cols] - integrals[:, :out_rows, w : w + out_cols] - ends[:, :, :out_cols]
     total, total_sq = windows + integrals[:, :out_rows, :out_cols]
-    a, b, values, corner = weights
-    numerator = (corner - template.mean) * total
-    for i, j, value in zip(rows[a].tolist(), cols[b].tolist(), values.tolist(), strict=True):
-        cv2.scaleAdd(integrals[0, i : i + out_rows, j : j + out_cols], value, numerator, dst=numerator)  # one call
-    variance = total_sq - total * total / (h * w)
-    flat = variance <= 1e-9 * total_sq  # no variance beyond rounding: scores 0, as in OpenCV
-    score = numerator / (np.sqrt(np.where(flat, 1.0, variance)) * template.norm)
-    score[flat] = 0.0
-    return np.clip(score, -1.0, 1.0, out=score).astype(np.float32)
+    return total, total_sq
+
+
+@dataclass(frozen=True)
+class _Correlation:
+    """``cv2.matchTemplate(view, raster, cv2.TM_CCOEFF_NORMED)`` with the face raster (wood 1, pocket
+    0): the paper's measure, strong where pockets are dark openings in lit wood.
+
+    The raster is a few constant cells, so its correlation at every offset is a few integral-image
+    lookups at the cell corners (where the raster's mixed second difference is nonzero) instead of a
+    DFT of the view: several times faster, and equal to 1e-4. The window's own corners give the window
+    sum times the corner cell's value, which the normalisation needs anyway.
+    """
+
+    edges: tuple[Array, Array]
+    values: Array  # (R, C): 1 wood, 0 pocket
+    corners: tuple[NDArray[np.int_], NDArray[np.int_], Array]  # rows, columns, weights of the nonzero corners
+    corner: float  # the corner cell's value
+
+    @classmethod
+    def of(cls, face: FaceModel) -> _Correlation:
+        z, y, regions = face.regions(1)
+        values = (regions == 0).astype(float)
+        weights = np.diff(np.diff(np.pad(values, 1), axis=0), axis=1)  # mixed second difference
+        corner = weights[0, 0]
+        weights[[0, 0, -1, -1], [0, -1, 0, -1]] -= corner * np.array([1, -1, -1, 1])
+        a, b = np.nonzero(weights)
+        return cls((z, y), values, (a, b, weights[a, b]), float(corner))
+
+    def match(self, integrals: NDArray, template: _Template, shape: tuple[int, int]) -> NDArray[np.float32]:
+        rows, cols, h, w = template.rows, template.cols, template.height, template.width
+        area = np.diff(rows)[:, None] * np.diff(cols)[None, :]
+        mean = float(np.sum(self.values * area)) / (h * w)
+        norm = math.sqrt(float(np.sum((self.values - mean) ** 2 * area)))
+        total, total_sq = _window_sums(integrals, template, shape)
+        out_rows, out_cols = shape
+        a, b, values = self.corners
+        numerator = (self.corner - mean) * total
+        for i, j, value in zip(rows[a].tolist(), cols[b].tolist(), values.tolist(), strict=True):
+            cv2.scaleAdd(integrals[0, i : i + out_rows, j : j + out_cols], value, numerator, dst=numerator)  # one call
+        variance = total_sq - total * total / (h * w)
+        flat = variance <= 1e-9 * total_sq  # no variance beyond rounding: scores 0, as in OpenCV
+        score = numerator / (np.sqrt(np.where(flat, 1.0, variance)) * max(norm, 1e-12))
+        score[flat] = 0.0
+        return np.clip(score, -1.0, 1.0, out=score).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class _RegionMatch:
+    """The region match (:func:`region_match`) with the face's regions, ``bands`` per pocket: it asks
+    only that the wood is one surface and the pockets differ from it, not which is brighter.
+
+    Every pocket band is a rectangle of cells, so its sum at every offset is four integral-image
+    lookups; the wood's is the window's less the bands'.
+    """
+
+    edges: tuple[Array, Array]
+    openings: NDArray[np.int_]  # (L - 1, 4) each band's first and past-last cell row, first and past-last column
+
+    @classmethod
+    def of(cls, face: FaceModel, bands: int) -> _RegionMatch:
+        z, y, regions = face.regions(bands)
+        rects = []
+        for label in range(1, int(regions.max()) + 1):
+            r, c = np.nonzero(regions == label)
+            rects.append((r.min(), r.max() + 1, c.min(), c.max() + 1))
+        return cls((z, y), np.array(rects, int).reshape(-1, 4))
+
+    def match(self, integrals: NDArray, template: _Template, shape: tuple[int, int]) -> NDArray[np.float32]:
+        rows, cols = template.rows, template.cols
+        out_rows, out_cols = shape
+        total, total_sq = _window_sums(integrals, template, shape)
+
+        def corner(i: int, j: int) -> NDArray:
+            return integrals[0, i : i + out_rows, j : j + out_cols]
+
+        sums, areas = [], []
+        for r0, r1, c0, c1 in self.openings.tolist():
+            top, bottom, left, right = rows[r0], rows[r1], cols[c0], cols[c1]
+            if bottom > top and right > left:
+                sums.append(corner(bottom, right) - corner(top, right) - corner(bottom, left) + corner(top, left))
+                areas.append((bottom - top) * (right - left))
+        wood = total - sum(sums)
+        size = template.height * template.width
+        return region_match(np.stack([wood, *sums]), np.array([size - sum(areas), *areas], float), total, total_sq)
+
+
+def region_match(sums: Array, areas: Array, total: Array, total_sq: Array) -> NDArray[np.float32]:
+    """The share of a window's intensity variance explained by regions of constant intensity each
+    (the ANOVA R^2: between-region over total sum of squares), in [0, 1]; 0 for a flat window.
+
+    Parameters
+    ----------
+    sums : (L, ...) array
+        Each region's intensity sum.
+    areas : (L,) array
+        Each region's pixel count (> 0), summing to the window's.
+    total, total_sq : (...) arrays
+        The window's intensity sum and sum of squares.
+
+    Unlike a correlation with a fixed template, it does not ask which region is brighter: a pocket
+    may be darker than the wood or lighter, as long as the wood is one surface and the pockets differ.
+    """
+    n = float(np.sum(areas))
+    mean_sq = total * total / n
+    between = np.tensordot(1.0 / areas, sums * sums, axes=1) - mean_sq
+    variance = total_sq - mean_sq
+    flat = variance <= 1e-9 * np.maximum(total_sq, 1e-30)  # no variance beyond rounding
+    score = between / np.where(flat, 1.0, variance)
+    score = np.where(flat, 0.0, score)
+    return np.clip(score, 0.0, 1.0).astype(np.float32)
 
 
 def _distinct(found: list[tuple[float, _Params]], face: FaceModel, eye: Array) -> list[tuple[float, _Params]]:
@@ -591,7 +697,9 @@ def _refine(smooth, camera, camera_in_fork, starts: list[_Params], points, norma
             break
         linear = _linearise(camera, fork_in_camera, [fits[k].params for k in live], points, normals, steps)
         starts_px = np.concatenate([p0 for p0, *_ in linear]) - smooth[1]
-        found = search_edges(smooth[0], starts_px, np.concatenate([d for _, d, *_ in linear]), radius)
+        directions = np.concatenate([d for _, d, *_ in linear])
+        # either polarity: which side of a pocket edge is brighter depends on the viewpoint and the light
+        found = search_edges(smooth[0], starts_px, directions, radius, either_polarity=True)
         for i, (k, (_, _, valid, J)) in enumerate(zip(live, linear, strict=True)):
             part = slice(i * len(points), (i + 1) * len(points))
             edges = EdgeSearch(found.offset[part], found.strength[part], found.valid[part])
@@ -695,25 +803,34 @@ def hidden_by_forks(points_f: Array, camera_f: Array, forks: ForkGeometry | None
 
 
 def _face_similarities(
-    gray, camera, camera_in_fork, face: FaceModel, poses: list[_Params], pixel: float = 0.005
+    gray, camera, camera_in_fork, face: FaceModel, poses: list[_Params], config: PoseSearchConfig,
+    pixel: float = 0.005,
 ) -> list[float]:
-    """Normalised cross-correlation of the face model with the image projected at each pose (one
-    projection for all, as the viewpoint-shift solve costs mostly per call)."""
-    template, ys, zs = face.raster(pixel)
+    """The similarity of the face with the image projected at each pose (``config.similarity``, as the
+    search matched it), -1 where the face leaves the image (one projection for all, as the
+    viewpoint-shift solve costs mostly per call)."""
+    regions, ys, zs = face.region_raster(pixel, 1 if config.similarity == "correlation" else config.pocket_bands)
     yy, zz = np.meshgrid(ys, zs)
     points = np.stack([np.zeros(yy.size), yy.ravel(), zz.ravel()], axis=1)
     fork_in_camera = camera_in_fork.inverse()
     pixels, valid = camera.project(np.concatenate([(fork_in_camera @ p.transform()).apply(points) for p in poses]))
-    b = template.ravel().astype(np.float64) - template.mean()
+    labels = regions.ravel()
+    areas = np.bincount(labels).astype(np.float64)
+    wood = (labels == 0).astype(np.float64) - np.mean(labels == 0)
     scores = []
     for pose_pixels, pose_valid in zip(np.split(pixels, len(poses)), np.split(valid, len(poses)), strict=True):
         if not pose_valid.all():
             scores.append(-1.0)
             continue
         u, v = pose_pixels[:, 0:1].astype(np.float32), pose_pixels[:, 1:2].astype(np.float32)
-        samples = cv2.remap(gray, u, v, cv2.INTER_LINEAR)
-        a = samples.ravel().astype(np.float64) - samples.mean()
-        scores.append(float(a @ b / max(np.linalg.norm(a) * np.linalg.norm(b), 1e-12)))
+        samples = cv2.remap(gray, u, v, cv2.INTER_LINEAR).ravel().astype(np.float64)
+        if config.similarity == "correlation":
+            centred = samples - samples.mean()
+            score = centred @ wood / max(float(np.linalg.norm(centred) * np.linalg.norm(wood)), 1e-12)
+        else:
+            sums = np.bincount(labels, samples)[areas > 0]
+            score = region_match(sums, areas[areas > 0], samples.sum(), samples @ samples)
+        scores.append(float(score))
     return scores
 
 

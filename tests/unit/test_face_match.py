@@ -1,0 +1,94 @@
+"""The pose scan's two face similarities, computed at every offset from integral images: the paper's
+correlation equals OpenCV's ``TM_CCOEFF_NORMED`` with the face raster, and the region match equals the
+ANOVA R^2 of the face's regions computed pixel by pixel; the region match does not care whether the
+pockets are darker or lighter than the wood, the correlation does."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from agf.config import load_config
+from agf.pallets import load_pallets
+from agf.paths import DEFAULT_CONFIG
+from agf.vision.face_model import FaceModel, face_model_from_pallet
+from agf.vision.pallet_pose import PoseSearchConfig, _Correlation, _RegionMatch, _templates, region_match
+
+PIXEL = 0.01  # m per pixel of the synthetic views
+
+
+@pytest.fixture(scope="module")
+def face() -> FaceModel:
+    config = load_config(DEFAULT_CONFIG)
+    return face_model_from_pallet(load_pallets(config.vision.pallets)["jis-t11"])
+
+
+def regions_image(face: FaceModel, bands: int) -> np.ndarray:
+    """The face's region raster at :data:`PIXEL`, as :func:`_templates` lays out its cells."""
+    regions, _, _ = face.region_raster(PIXEL, bands)
+    return regions
+
+
+def scores_at_every_offset(matcher, face: FaceModel, view: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    template = _templates(face, matcher.edges, np.array([PIXEL]))[0]
+    shape = (view.shape[0] - template.height + 1, view.shape[1] - template.width + 1)
+    integrals = np.stack(cv2.integral2(view, sdepth=cv2.CV_64F, sqdepth=cv2.CV_64F))
+    return matcher.match(integrals, template, shape), np.array([template.height, template.width])
+
+
+def r2_by_pixels(window: np.ndarray, regions: np.ndarray) -> float:
+    values, labels = window.ravel().astype(np.float64), regions.ravel()
+    total = np.sum((values - values.mean()) ** 2)
+    means = np.bincount(labels, values) / np.bincount(labels)
+    return float(np.sum((means[labels] - values.mean()) ** 2) / total)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_correlation_equals_opencv_match_template(face, seed):
+    rng = np.random.default_rng(seed)
+    view = cv2.GaussianBlur(rng.uniform(0, 255, (40, 150)).astype(np.float32), (0, 0), 2.0)
+    raster = (regions_image(face, 1) == 0).astype(np.float32)
+    score, size = scores_at_every_offset(_Correlation.of(face), face, view)
+    assert tuple(size) == raster.shape
+    expected = cv2.matchTemplate(view, raster, cv2.TM_CCOEFF_NORMED)
+    np.testing.assert_allclose(score, expected, atol=2e-4)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_region_match_equals_r2_pixel_by_pixel(face, seed):
+    rng = np.random.default_rng(seed)
+    view = cv2.GaussianBlur(rng.uniform(0, 255, (36, 140)).astype(np.float32), (0, 0), 2.0)
+    regions = regions_image(face, 3)
+    score, (h, w) = scores_at_every_offset(_RegionMatch.of(face, 3), face, view)
+    assert (h, w) == regions.shape
+    for r, c in rng.integers(0, score.shape, (25, 2)).tolist():
+        assert score[r, c] == pytest.approx(r2_by_pixels(view[r : r + h, c : c + w], regions), abs=1e-4)
+
+
+@pytest.mark.parametrize("pockets", ["dark", "lit"])
+def test_region_match_does_not_ask_which_is_brighter(face, pockets):
+    """Regression (foreign renders): pockets seen from above show the lit bottom deck and a shadowed
+    ceiling; the correlation with dark pockets scored the true pose near 0 and matched elsewhere."""
+    regions = regions_image(face, 3)
+    wood, pocket = (180.0, 40.0) if pockets == "dark" else (120.0, 220.0)
+    view = np.full((regions.shape[0] + 20, regions.shape[1] + 20), 90.0, np.float32)
+    view[10:-10, 10:-10] = np.where(regions == 0, wood, pocket)
+    view += np.random.default_rng(1).normal(0, 3, view.shape).astype(np.float32)
+    regions_score, _ = scores_at_every_offset(_RegionMatch.of(face, 3), face, view)
+    correlation, _ = scores_at_every_offset(_Correlation.of(face), face, view)
+    assert np.unravel_index(np.argmax(regions_score), regions_score.shape) == (10, 10)
+    assert regions_score[10, 10] > 0.95
+    assert correlation[10, 10] > 0.95 if pockets == "dark" else correlation[10, 10] < -0.95
+
+
+def test_region_match_of_a_flat_window_is_zero():
+    sums, areas = np.array([[10.0], [30.0]]), np.array([1.0, 3.0])  # every pixel 10
+    assert region_match(sums, areas, np.array([40.0]), np.array([400.0]))[0] == 0.0
+
+
+def test_pocket_bands_must_be_positive():
+    with pytest.raises(ValueError, match="pocket_bands"):
+        PoseSearchConfig(pocket_bands=0)
+    with pytest.raises(ValueError, match="similarity"):
+        PoseSearchConfig(similarity="edges")  # type: ignore[arg-type]
