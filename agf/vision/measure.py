@@ -200,7 +200,7 @@ def measure_pallet(
         narrow = dataclasses.replace(search, prior_window=0.04, prior_yaw_window=math.radians(2), candidates=1)
         try:
             pose, chosen, evidence = converged(assumed)
-            if chosen.hypothesis == "unloaded":
+            if chosen.hypothesis == "unloaded" and chosen.placed:
                 pose = onto_deck_edges(pose, chosen)
             t = time.perf_counter()
             agreement = check_face_edges(gray, camera, camera_in_fork, pose.pallet_in_fork, face, forks, config.edges)

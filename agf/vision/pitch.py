@@ -44,7 +44,10 @@ class PitchConfig:
     load_height: float = 0.4  # m of load edge above the deck that is searched and must be found ...
     load_reach: float = 1.0  # ... and how far up a found edge is followed for the fit: over 0.4 m, sensor
     # noise leaned the pair 0.07-0.17 deg on 13 random loaded picks; followed up a 0.5-1 m load, 0.05 deg at most
-    rival_gap: float = 12.0  # panorama pixels: a parallel line this close to an edge makes it ambiguous
+    rival_gap: float = 12.0  # panorama pixels: a parallel line this close to an edge makes it ambiguous ...
+    rival_pitch: float = math.radians(0.03)  # ... unless the pitch with it instead is within this: a line
+    # parallel in 3D (the deck board's lower edge, a bed seam, an upright beside a level load) gives the
+    # same direction, hence the same pitch; only where the edge lies stays in doubt
     anchor_tolerance: float = 5.0  # panorama pixels: an edge this close to the point the pose pins ...
     anchor_gap: float = 3.0  # ... beats a rival that misses that point by this many pixels more
 
@@ -74,8 +77,11 @@ class PitchEvidence:
     sigma : float
         Standard deviation of the pitch (rad), from the scatter of each line's inlier directions.
     ambiguous : bool
-        A second strong line runs beside one of the edges (a rack upright next to a load edge, a shadow):
-        the fit cannot tell which is the edge, so the hypothesis is not valid.
+        A second strong line runs beside one of the edges (a rack upright next to a load edge, a shadow)
+        and gives another pitch: the fit cannot tell which is the edge, so the hypothesis is not valid.
+    placed : bool
+        The edges' positions are known too (no line beside them): only then may they move the pose
+        (:func:`pose_from_deck_edges`); a rival that gives the same pitch leaves the pitch valid.
     """
 
     hypothesis: str
@@ -88,6 +94,7 @@ class PitchEvidence:
     lines: list[SphereLine]
     sigma: float = math.nan
     ambiguous: bool = False
+    placed: bool = True
 
 
 def unloaded_evidence(
@@ -202,7 +209,7 @@ def _evidence(
     reaches = [_region(panorama, far, config) for far in reach]
     directions, strong, columns, rows = _edge_points(image.astype(np.float32), valid, panorama, regions + reaches)
     lines, ratios, scatter = [], [], []
-    rivals = 0
+    rivals: list[SphereLine | None] = []
     for segment, far, region, reach_region in zip(segments, reach, regions, reaches, strict=True):
         inside = _inside(region, columns, rows)
         lon = (
@@ -216,8 +223,7 @@ def _evidence(
         if line is not None:
             rival = _rival_nearby(panorama, fitted, ones, line, lon, config)
             anchor = _unit(segment[:1])[0] if anchored else None
-            if rival is not None and not _anchor_decides(line, rival, anchor, panorama, config):
-                rivals += 1
+            rivals.append(None if rival is None or _anchor_decides(line, rival, anchor, panorama, config) else rival)
             along = _inside(reach_region, columns, rows) & strong
             grown = _from_reference_viewpoint(camera, directions[along], far)
             fit = refine_line(grown, np.ones(len(grown)), line.normal, config.inlier_tolerance * panorama.pixel_size())
@@ -231,15 +237,25 @@ def _evidence(
             lines.append(fit if fit is not None else line)
     ratio = float(min(ratios))
     nan = np.full(3, np.nan)
-    if len(lines) < 2 or ratio < config.min_ratio or rivals:
-        return PitchEvidence(hypothesis, ratio, False, math.nan, nan, panorama, regions, lines, math.nan, rivals > 0)
-    try:
-        direction = common_direction(lines[0].normal, lines[1].normal, predicted)
-    except ValueError:
-        return PitchEvidence(hypothesis, ratio, False, math.nan, nan, panorama, regions, lines)
-    pitch = _pitch_from_direction(camera_in_fork.apply_direction(direction), pallet_in_fork, hypothesis)
-    sigma = math.hypot(*scatter)
-    return PitchEvidence(hypothesis, ratio, True, pitch, direction, panorama, regions, lines, sigma)
+    if len(lines) < 2 or ratio < config.min_ratio:
+        return PitchEvidence(hypothesis, ratio, False, math.nan, nan, panorama, regions, lines, math.nan)
+    pitches = []
+    for left in (lines[0], rivals[0]):
+        for right in (lines[1], rivals[1]):
+            if left is not None and right is not None:
+                try:
+                    direction = common_direction(left.normal, right.normal, predicted)
+                except ValueError:
+                    return PitchEvidence(hypothesis, ratio, False, math.nan, nan, panorama, regions, lines)
+                pitches.append(_pitch_from_direction(camera_in_fork.apply_direction(direction), pallet_in_fork,
+                                                     hypothesis))
+    direction = common_direction(lines[0].normal, lines[1].normal, predicted)
+    pitch, spread = pitches[0], max(abs(p - pitches[0]) for p in pitches)
+    if spread > config.rival_pitch:
+        return PitchEvidence(hypothesis, ratio, False, math.nan, nan, panorama, regions, lines, math.nan, True)
+    sigma = math.hypot(*scatter, spread / 2)
+    placed = all(rival is None for rival in rivals)
+    return PitchEvidence(hypothesis, ratio, True, pitch, direction, panorama, regions, lines, sigma, placed=placed)
 
 
 def _region(panorama: Panorama, segment: Array, config: PitchConfig) -> Array:

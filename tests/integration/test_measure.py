@@ -65,6 +65,14 @@ def test_robust_scene_is_within_bounds_or_refused(key, rendered):
     assert measurement.loaded == scene.loaded
 
 
+def test_regression_epal_second_line_giving_the_same_pitch_is_measured(rendered):
+    """Regression: a second line beside an edge refused the EUR pallet's measurement although, parallel
+    in 3D, it gave the same pitch; it now only keeps the edges from moving the pose."""
+    scene, measurement = measure("robust/epal", rendered)
+    e = errors(scene, measurement)
+    assert within_bounds(e), e
+
+
 def test_wrong_pallet_type_is_refused_not_measured(rendered):
     """An EUR pallet measured as a JIS one must not pass as a pose."""
     with pytest.raises(MeasurementError):
