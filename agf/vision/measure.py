@@ -55,6 +55,12 @@ class MeasureConfig:
     # Pose and pitch agree when an iteration moves the pitch by less than this; re-fits jitter by about
     # 0.02 deg, so a tighter value only loops (simulated picks failed on 0.01 deg).
     pitch_tolerance: float = math.radians(0.03)
+    # The edges are searched again with the pallet assumed pitched this much either way from the
+    # measured pitch, and must give it again within ``pitch_probe_tolerance``: under random looks a
+    # second pair of load edges, 0.5 deg off, answered a search from 0.5 deg away, and the iteration
+    # settled on it. Re-fits of the right pair differ by up to 0.07 deg (paper scene loaded-low-flat).
+    pitch_probe: float = math.radians(0.3)
+    pitch_probe_tolerance: float = math.radians(0.1)
     # Floors under the fitted uncertainties: the fits see pixel noise, not the systematic errors (wood
     # grain, blur) that the rendered paper scenes show (up to 2 mm in z and 0.07 deg in pitch).
     sigma_z_floor: float = 0.001
@@ -157,6 +163,24 @@ def measure_pallet(
         seen.setdefault("evidence", {"loaded": loaded, "unloaded": unloaded})
         return {"loaded": loaded, "unloaded": unloaded}
 
+    def check_pitch_stable(pose: PoseEstimate, chosen: PitchEvidence) -> None:
+        """Refuse unless the chosen hypothesis gives the same pitch when its edges are searched from
+        :attr:`MeasureConfig.pitch_probe` either side: the pitch must not depend on where the search began."""
+        t = time.perf_counter()
+        edges_of = unloaded_evidence if chosen.hypothesis == "unloaded" else loaded_evidence
+        yaw, _, roll = pose.pallet_in_fork.euler
+        for offset in (-config.pitch_probe, config.pitch_probe):
+            probe = Transform.from_euler(*pose.pallet_in_fork.translation, roll, chosen.pitch + offset, yaw)
+            again = edges_of(gray, camera, camera_in_fork, pallet, probe, config.pitch)
+            if not again.valid or abs(again.pitch - chosen.pitch) > config.pitch_probe_tolerance:
+                found = f"{math.degrees(again.pitch):.2f} deg" if again.valid else "no pair of edges"
+                raise MeasurementError(
+                    f"the {chosen.hypothesis} edges do not settle on one pitch: {math.degrees(chosen.pitch):.2f} deg "
+                    f"measured, {found} when searched from {math.degrees(offset):+.1f} deg beside it; "
+                    "refusing rather than guessing"
+                )
+        timing["pitch"] = timing.get("pitch", 0.0) + (time.perf_counter() - t) * 1e3
+
     def converged(pitch: float) -> tuple[PoseEstimate, PitchEvidence, dict[str, PitchEvidence]]:
         first = pose = pose_at(prior, pitch, search)
         step = swing = 0.0
@@ -169,6 +193,7 @@ def measure_pallet(
             swing = max(swing, swung)
             step = change
             if abs(change) < config.pitch_tolerance:
+                check_pitch_stable(pose, chosen)
                 chosen = dataclasses.replace(chosen, sigma=max(chosen.sigma, swing / 2))
                 # The narrow re-searches see no rivals; the wide first search did, at the assumed pitch.
                 pose = dataclasses.replace(pose, margin=min(pose.margin, pose.score - (first.score - first.margin)))
