@@ -16,3 +16,17 @@ def test_controller_diagram_in_docs_is_current():
 
     expected = tool.TEXT.format(diagram=controller_diagram().rstrip())
     assert repo_path("docs/controller.md").read_text() == expected, "run tools/controller_diagram"
+
+
+def test_every_refusal_in_the_vision_guide_is_one_the_code_raises():
+    """docs/vision.md's refusal table quotes the start of each message; each must still be in the code."""
+    import re
+
+    sources = "".join(path.read_text() for path in sorted(repo_path("agf/vision").glob("*.py")))
+    sources = re.sub(r"\"\s*\n\s*f?\"", "", sources)  # join the implicitly concatenated message parts
+    table = [line for line in repo_path("docs/vision.md").read_text().splitlines() if line.startswith("| `")]
+    assert len(table) >= 10
+    for line in table:
+        quoted = line.split("`")[1]
+        words = re.split(r"\.\.\.|\{", quoted)[0].strip()
+        assert words and words in sources, f"docs/vision.md quotes {quoted!r}, which agf/vision/ no longer raises"
