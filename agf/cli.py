@@ -90,6 +90,8 @@ def _cmd_simulate(args: argparse.Namespace, config: Config) -> dict[str, Any]:
         raise InputError(f"--jobs: expected a positive number of picks side by side, got {args.jobs}")
     if args.resume and args.out is None:
         raise InputError("--resume: give --out CAMPAIGN_DIR, the folder of the campaign to finish")
+    if args.only is not None and (args.random is None or not 0 <= args.only < args.random):
+        raise InputError(f"--only: expected a pick number 0..N-1 of --random N, got {args.only}")
     return _plugin(config, "simulate")(
         config,
         scene=scene,
@@ -101,6 +103,7 @@ def _cmd_simulate(args: argparse.Namespace, config: Config) -> dict[str, Any]:
         address=args.address,
         out=args.out or str(_campaign_folder(args)),
         resume=args.resume,
+        indices=None if args.only is None else [args.only],
         progress=not args.json,
     )
 
@@ -206,6 +209,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--address", metavar="ADDR", help="Ray cluster to join (auto, HOST:PORT, ray://HOST:10001)")
     p.add_argument("--out", metavar="CAMPAIGN_DIR", help="campaign folder (default: a new one under campaigns/)")
     p.add_argument("--resume", action="store_true", help="finish the campaign in --out: run only missing picks")
+    p.add_argument("--only", type=int, metavar="K",
+                   help="run only pick K (0-based) of --random N --seed S, exactly as in the whole campaign")
     p.set_defaults(handler=_cmd_simulate)
 
     p = sub.add_parser("replay", parents=[common], help="re-run the measurement on a pick's logged frames")

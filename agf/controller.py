@@ -14,6 +14,14 @@ drive fault while holding still ends in FAULT.
 
 Every transition (with its reason), frame, measurement or refusal, plan and control cycle (setpoints
 sent, feedback read) is reported to a :class:`agf.recorder.Recorder`: the pick's log.
+
+When the forks hide the pallet from the camera (a :class:`agf.errors.PalletHiddenError`), the
+controller does not give up: VIEWING moves the forks, lift only, level with the pallet's pockets
+where the camera sees them past the tines, and the pick acquires and measures again.
+
+Time comes from an injected :class:`agf.clock.Clock`: motion timeouts and the stream of setpoints
+read it (simulated time in the simulated world, where the vision takes none), and the vision's
+timeouts its compute time (wall time on a truck, CPU time in a simulated world).
 """
 
 from __future__ import annotations
@@ -28,8 +36,10 @@ from typing import Any, Protocol
 from statemachine import State, StateMachine
 
 from agf.axis import Axis, AxisState
-from agf.errors import AgfError, DriveFault
+from agf.clock import Clock, WallClock
+from agf.errors import AgfError, DriveFault, PalletHiddenError
 from agf.frames import Frame, FrameLost, FrameSource
+from agf.geometry import Transform
 from agf.measurement import PalletMeasurement
 from agf.recorder import Recorder
 
@@ -43,6 +53,7 @@ class PickMachine(StateMachine):
     connecting = State()
     acquiring = State()
     measuring = State()
+    viewing = State()
     planning = State()
     aligning = State()
     verifying = State()
@@ -54,6 +65,8 @@ class PickMachine(StateMachine):
     connected = connecting.to(acquiring)
     acquired = acquiring.to(measuring)
     measured = measuring.to(planning)
+    hidden = measuring.to(viewing)
+    viewed = viewing.to(acquiring)
     planned = planning.to(aligning)
     aligned = aligning.to(verifying)
     verified = verifying.to(inserting)
@@ -63,6 +76,7 @@ class PickMachine(StateMachine):
         connecting.to(fault)
         | acquiring.to(fault)
         | measuring.to(fault)
+        | viewing.to(fault)
         | planning.to(fault)
         | aligning.to(fault)
         | verifying.to(fault)
@@ -104,13 +118,18 @@ class Planner(Protocol):
 
     def insert_motion(self, axes_now: Mapping[str, float], plan: Any) -> Motion: ...
 
+    def view_motion(self, axes_now: Mapping[str, float], pallet_in_fork: Transform) -> Motion:
+        """A move that lets the camera see the pallet (roughly at ``pallet_in_fork``) past the forks,
+        clear of it; :class:`AgfError` when there is none."""
+
     def verify(self, measurement: PalletMeasurement, plan: Any) -> str | None:
         """None when the re-measured pallet is where the aligned forks expect it, else why not."""
 
 
 @dataclass(frozen=True)
 class ControllerConfig:
-    """Cycle and per-state timeouts (s), and how close an axis must come to its target (m or rad)."""
+    """Cycle and per-state timeouts (s), how close an axis must come to its target (m or rad), and how
+    many re-plans and viewing moves one pick may make."""
 
     cycle: float = 0.01
     timeouts: Mapping[str, float] = field(
@@ -118,6 +137,7 @@ class ControllerConfig:
             "connecting": 10.0,
             "acquiring": 5.0,
             "measuring": 10.0,
+            "viewing": 60.0,
             "planning": 2.0,
             "aligning": 60.0,
             "verifying": 20.0,
@@ -127,11 +147,17 @@ class ControllerConfig:
     arrive_tolerance: float = 0.002
     replans: int = 1
     frame_attempts: int = 3  # a lost or unusable frame is read again, up to this many reads in all
+    views: int = 1
 
 
 @dataclass
 class PickResult:
-    """How a pick ended: ``ok`` only in DONE; otherwise the FAULT reason. ``log`` holds one row per cycle."""
+    """How a pick ended: ``ok`` only in DONE; otherwise the FAULT reason. ``log`` holds one row per cycle.
+
+    ``durations`` are per state on the controller's clock (s; simulated seconds in the simulated
+    world, where the vision takes none), ``wall_durations`` the same in wall seconds. ``views`` holds
+    why each viewing move was made (the forks hid the pallet).
+    """
 
     ok: bool
     state: str
@@ -140,6 +166,8 @@ class PickResult:
     plan: Any
     durations: dict[str, float]
     log: list[dict[str, Any]]
+    wall_durations: dict[str, float] = field(default_factory=dict)
+    views: list[str] = field(default_factory=list)
 
 
 class PickController:
@@ -156,11 +184,13 @@ class PickController:
         progress: Callable[[str], None] | None = None,
         recorder: Recorder | None = None,
         streamer: Streamer | None = None,
+        clock: Clock | None = None,
     ) -> None:
         self.axes, self.frames, self.measure, self.planner = axes, frames, measure, planner
         self.streamer = streamer
         self.config, self.on_cycle = config, on_cycle
         self.recorder = recorder or Recorder()  # the base records nothing
+        self.clock = clock or WallClock()
         self.progress = progress or (lambda message: None)
         self.machine = PickMachine()
         self._alarm: str | None = None
@@ -209,9 +239,10 @@ class PickController:
             "inserting": self._insert,
         }
         frame: Frame | None = None
+        hidden: PalletHiddenError | None = None
         replans = 0
         while (state := self._state()) not in ("done", "fault"):
-            start = time.monotonic()
+            start, wall_start = self.clock.monotonic(), time.perf_counter()
             try:
                 start += self._hold()
                 self.progress(state)
@@ -220,9 +251,11 @@ class PickController:
                     frame = self._read_frame()
                     event = "acquired"
                 elif state == "measuring":
-                    prior = result.measurements[-1] if result.measurements else None
-                    result.measurements.append(self._measure(state, frame, prior))
-                    event = "measured"
+                    hidden, event = self._measure_first(result, frame)
+                elif state == "viewing":
+                    motion = self.planner.view_motion(self._positions(), hidden.pallet_in_fork)
+                    self._follow(motion, state, result)
+                    event = "viewed"
                 else:
                     event = steps[state](result)
                 if event == "replan":
@@ -235,7 +268,9 @@ class PickController:
                 self._send("abort", result.reason)
                 break
             finally:
-                result.durations[state] = result.durations.get(state, 0.0) + time.monotonic() - start
+                result.durations[state] = result.durations.get(state, 0.0) + self.clock.monotonic() - start
+                wall = time.perf_counter() - wall_start
+                result.wall_durations[state] = result.wall_durations.get(state, 0.0) + wall
             self._send(event)
         result.state = self._state()
         result.ok = result.state == "done"
@@ -245,11 +280,11 @@ class PickController:
         """Wait while paused, watching stops and drive faults; the seconds held (not the state's time)."""
         if self._running.is_set():
             return 0.0
-        start = time.monotonic()
+        start = self.clock.monotonic()
         self.progress("paused")
-        while not self._running.wait(self.config.cycle):
+        while not self.clock.wait(self._running, self.config.cycle):
             self._check_alarm()
-        return time.monotonic() - start
+        return self.clock.monotonic() - start
 
     def _state(self) -> str:
         return next(iter(self.machine.configuration)).id
@@ -267,11 +302,27 @@ class PickController:
         self.recorder.measurement(state, frame, measurement)
         return measurement
 
+    def _measure_first(self, result: PickResult, frame: Frame | None) -> tuple[PalletHiddenError | None, str]:
+        """The first measurement of a pick (again after a viewing move); when the forks hide the pallet,
+        the reason for a viewing move, as long as the pick has one left."""
+        prior = result.measurements[-1] if result.measurements else None
+        try:
+            result.measurements.append(self._measure("measuring", frame, prior))
+        except PalletHiddenError as exc:
+            if len(result.views) >= self.config.views:
+                raise
+            result.views.append(str(exc))
+            return exc, "hidden"
+        return None, "measured"
+
     def _timed(self, fn: Callable[..., Any], state: str, *args: Any) -> Any:
-        start = time.monotonic()
+        """``fn(*args)``, refused if its computing took longer than the state's timeout (measured by
+        :meth:`Clock.compute_seconds`: wall time on a truck, CPU time in a simulated world)."""
+        start = self.clock.compute_seconds()
         value = fn(*args)
-        if time.monotonic() - start > self.config.timeouts[state]:
-            raise TimeoutError(f"took {time.monotonic() - start:.1f} s, the limit is {self.config.timeouts[state]} s")
+        took = self.clock.compute_seconds() - start
+        if took > self.config.timeouts[state]:
+            raise TimeoutError(f"took {took:.1f} s, the limit is {self.config.timeouts[state]} s")
         return value
 
     def _connect(self, result: PickResult) -> str:
@@ -327,8 +378,8 @@ class PickController:
         """Stream ``motion`` one setpoint per cycle, then wait until every axis arrives.
 
         With a streamer the set-points go out from the bus's cycle and this loop only watches."""
-        deadline = time.monotonic() + self.config.timeouts[state]
-        t0 = time.monotonic()
+        t0 = self.clock.monotonic()
+        deadline = t0 + self.config.timeouts[state]
         target = motion.at(motion.duration)
 
         def at(t: float) -> Mapping[str, float]:
@@ -345,7 +396,7 @@ class PickController:
     def _watch_motion(self, at: Callable[[float], Mapping[str, float]], target: Mapping[str, float], t0: float,
                       deadline: float, duration: float, state: str, result: PickResult) -> None:
         while True:
-            now = time.monotonic()
+            now = self.clock.monotonic()
             if now > deadline:
                 raise TimeoutError(f"motion not finished within {self.config.timeouts[state]} s")
             self._check_alarm()
@@ -370,7 +421,7 @@ class PickController:
         if waiter is not None:
             waiter.wait_for_feedback(timeout=10 * self.config.cycle)
         else:
-            time.sleep(self.config.cycle)
+            self.clock.sleep(self.config.cycle)
 
     def _check_alarm(self) -> None:
         with self._lock:

@@ -7,6 +7,11 @@ is a bad value, so callers that validate input can catch the standard type.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from agf.geometry import Transform
+
 
 class AgfError(Exception):
     """Base of every error the controller reports to a user."""
@@ -30,6 +35,19 @@ class MeasurementError(AgfError):
     def __init__(self, message: str, found: object | None = None) -> None:
         super().__init__(message)
         self.found = found
+
+
+class PalletHiddenError(MeasurementError):
+    """The forks hide too much of the pallet from the camera to trust the measurement.
+
+    ``pallet_in_fork`` is where the hidden pallet roughly is (frame P in fork frame F, the pose the
+    refused measurement found), so that the controller can move the forks out of the view and
+    measure again.
+    """
+
+    def __init__(self, message: str, pallet_in_fork: Transform, found: object | None = None) -> None:
+        super().__init__(message, found)
+        self.pallet_in_fork = pallet_in_fork
 
 
 class NotAvailableError(AgfError):

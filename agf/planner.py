@@ -1,4 +1,5 @@
-"""The controller's planner: insertion targets and the Ruckig motions to reach them, from config."""
+"""The controller's planner: insertion targets and the Ruckig motions to reach them, from config, and
+the viewing move that lets the camera see a pallet the forks hide."""
 
 from __future__ import annotations
 
@@ -11,6 +12,8 @@ import numpy as np
 
 from agf.axis import AxisLimits
 from agf.config import ForkGeometry, section_from_mapping, unit
+from agf.errors import AgfError
+from agf.geometry import Transform
 from agf.insertion import InsertionConfig, InsertionPlan, plan_insertion
 from agf.kinematics import MastGeometry, fork_in_truck_from_axes
 from agf.measurement import PalletMeasurement
@@ -31,6 +34,9 @@ class PickSettings:
     # Plans use this share of each drive's velocity, acceleration and jerk limits, so that a late
     # control cycle never asks a drive for more than it can give (a following-error fault).
     motion_share: float = 0.8
+    # A viewing move (the forks hid the pallet) keeps the fork tips this far in front of the pallet's
+    # front face as the forks move up or down: the refused measurement's pose is only rough.
+    view_clearance: float = unit("mm", 0.1)
 
     def __post_init__(self) -> None:
         if not 0 < self.motion_share <= 1:
@@ -67,6 +73,13 @@ class PickPlanner:
         target = {name: plan.insert[name] for name in ("reach", "lift")}
         return plan_move(axes_now, target, self._motion_limits(), "phase")
 
+    def view_motion(self, axes_now: Mapping[str, float], pallet_in_fork: Transform) -> Trajectory:
+        """The move to :func:`viewing_axes` (the forks hid the pallet roughly at ``pallet_in_fork``)."""
+        target = viewing_axes(
+            pallet_in_fork, axes_now, self.mast, self.forks, self.pallet, self.limits, self.settings.view_clearance
+        )
+        return plan_move(axes_now, target, self._motion_limits(), "time")
+
     def _motion_limits(self) -> dict[str, AxisLimits]:
         return {name: a.scaled(self.settings.motion_share) for name, a in self.limits.items()}
 
@@ -84,3 +97,52 @@ class PickPlanner:
                 "from where the forks expect it"
             )
         return None
+
+
+def viewing_axes(
+    pallet_in_fork: Transform,
+    axes_now: Mapping[str, float],
+    mast: MastGeometry,
+    forks: ForkGeometry,
+    pallet: PalletType,
+    limits: Mapping[str, AxisLimits],
+    clearance: float,
+) -> dict[str, float]:
+    """Axis targets from which the camera sees a pallet that the forks hid: the forks level with its
+    pockets.
+
+    A pallet well below the forks is seen past the tines' tips; level with the forks, the camera above
+    them looks down at the pocket line in front of the tips, as it does when it verifies the aligned
+    forks. Only the lift moves: reach and tilt keep the tips where they are along the truck, so they
+    pass the pallet's front face at the distance they have now, which must be at least ``clearance``
+    (m) from the face's nearest corner.
+
+    Parameters
+    ----------
+    pallet_in_fork : Transform
+        Rough pose of the pallet (frame P in fork frame F) at the axes ``axes_now`` (m, rad).
+
+    Raises
+    ------
+    AgfError
+        If the tips are closer to the pallet than ``clearance`` or the lift would leave its limits.
+    """
+    fork_in_truck = fork_in_truck_from_axes(axes_now, mast)
+    face = np.array([[0.0, y, z] for y in (-pallet.width / 2, pallet.width / 2)
+                     for z in (pallet.deck_bottom, pallet.deck_top)])
+    tips = np.array([[0.0, s * forks.spacing / 2 + w * forks.width / 2, t * forks.thickness / 2]
+                     for s in (-1, 1) for w in (-1, 1) for t in (-1, 1)])
+    gap = float((fork_in_truck @ pallet_in_fork).apply(face)[:, 0].min() - fork_in_truck.apply(tips)[:, 0].max())
+    if gap < clearance:
+        raise AgfError(
+            f"the forks hide the pallet, and their tips are {gap * 1e3:.0f} mm from its front face: no room to "
+            f"move them out of the camera's view (at least {clearance * 1e3:.0f} mm needed)"
+        )
+    # Lifting by d moves the pallet by -d cos(tilt) along the fork's z axis.
+    lift = axes_now["lift"] + pallet_in_fork.translation[2] / math.cos(axes_now.get("tilt", 0.0))
+    if not limits["lift"].contains(lift):
+        raise AgfError(
+            f"the forks hide the pallet, and the lift that would show it ({lift * 1e3:.0f} mm) is outside the "
+            f"lift's limits [{limits['lift'].minimum * 1e3:.0f}, {limits['lift'].maximum * 1e3:.0f}] mm"
+        )
+    return {**axes_now, "lift": lift}

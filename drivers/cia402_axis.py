@@ -25,10 +25,11 @@ import io
 import logging
 import math
 import os
+import queue
 import re
 import threading
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -42,6 +43,7 @@ from canopen.profiles.p402 import BaseNode402, State402
 from canopen.sdo.exceptions import SdoAbortedError, SdoError
 
 from agf.axis import Axis, AxisFeedback, AxisLimits, AxisState
+from agf.clock import Clock, Periodic, SimulatedClock, WallClock
 from agf.config import child, section_from_mapping, unit
 from agf.errors import ConfigError, DriveFault
 from drivers.can_bus import open_bus
@@ -77,6 +79,10 @@ FEEDBACK_WINDOW, FEEDBACK_MISSING, FEEDBACK_GRACE = 100, 10, 10
 # SCHED_RR priorities (1..99) of the master's threads where the OS allows it: above every ordinary
 # process, far below the kernel's own interrupt threads (50)
 PRODUCER_PRIORITY, RECEIVE_PRIORITY, WATCHDOG_PRIORITY = 30, 29, 28
+#: Wall seconds, on a simulated clock, that a bus's frames may take to be handled before time moves on
+#: anyway, and that an SDO answer may take: the drives answer in this process, so only a hung thread
+#: (or a machine busy many times over) takes that long.
+SIMULATED_WAIT = 30.0
 
 _STATUS_MASKS = {  # statusword -> collapsed axis state, order matters (fault bits first)
     AxisState.FAULT: ((0x4F, 0x08), (0x4F, 0x0F)),
@@ -300,6 +306,80 @@ def drive_settings_from_mapping(name: str, data: Any, where: str, base_dir: Path
 # network
 
 
+class ClockedNetwork(canopen.Network):
+    """A ``canopen.Network`` whose periodic messages (SYNC, heartbeats) keep the given clock's time.
+
+    On the wall clock they are python-can's periodic sends, as in canopen. On a simulated clock they
+    are events of that clock, and after every event the clock waits until each frame sent on the bus
+    has been handled by its receivers (python-can's virtual bus counts them on its queues): every SYNC
+    then moves each drive one step and brings its TPDOs back before time moves on, as fast as the
+    threads run and independent of how fast they run.
+    """
+
+    def __init__(self, bus: can.BusABC, clock: Clock) -> None:
+        super().__init__(bus)
+        self.clock = clock
+        self._settler: Periodic | None = None
+        if isinstance(clock, SimulatedClock):
+            self._queue = getattr(bus, "queue", None)
+            if not isinstance(self._queue, queue.Queue):
+                raise ConfigError(f"a simulated clock needs python-can's virtual bus, not {bus.channel_info}")
+            self.listeners.append(_Handled(self._queue))
+            self._settler = clock.add_settler(self._settle)
+
+    def send_periodic(self, can_id: int, data: bytes, period: float, remote: bool = False) -> Any:
+        if self.clock.realtime:
+            return super().send_periodic(can_id, data, period, remote)
+        return _ClockedMessage(self, can_id, data, period)
+
+    def disconnect(self) -> None:
+        if self._settler is not None:
+            self._settler.cancel()
+        super().disconnect()
+
+    def _settle(self) -> bool:
+        """Wait until every frame this node received has been handled; whether none was pending."""
+        pending = self._queue.all_tasks_done
+        with pending:
+            if self._queue.unfinished_tasks == 0:
+                return True
+            if not pending.wait_for(lambda: self._queue.unfinished_tasks == 0, SIMULATED_WAIT):
+                logger.warning("CAN frames not handled within %.0f s of wall time; simulated time goes on",
+                               SIMULATED_WAIT)
+        return False
+
+
+class _Handled(can.Listener):
+    """The last listener of a virtual bus's notifier: marks each frame handled on the bus's queue."""
+
+    def __init__(self, frames: queue.Queue) -> None:
+        self._frames = frames
+
+    def on_message_received(self, msg: can.Message) -> None:
+        self._frames.task_done()
+
+    def stop(self) -> None:
+        """Nothing to release."""
+
+
+class _ClockedMessage:
+    """canopen's ``PeriodicMessageTask`` interface (``stop``, ``update``) on a clock's events."""
+
+    def __init__(self, network: canopen.Network, can_id: int, data: bytes, period: float) -> None:
+        self._network, self._can_id, self.data = network, can_id, bytes(data)
+        self._event = network.clock.every(period, self._send, f"can-0x{can_id:03X}")
+
+    def _send(self) -> None:
+        if self._network.bus is not None:
+            self._network.send_message(self._can_id, self.data)
+
+    def stop(self) -> None:
+        self._event.cancel()
+
+    def update(self, data: bytes) -> None:
+        self.data = bytes(data)
+
+
 class Cia402Network:
     """One CAN bus with its CiA 402 drives: canopen network, SYNC, master heartbeat, watchdog.
 
@@ -309,11 +389,15 @@ class Cia402Network:
         An open python-can bus (see :func:`drivers.can_bus.open_bus`); closed by :meth:`close`.
     settings : NetworkSettings
         Cycle (SYNC period, s), heartbeat period (s) of master and drives, master node id.
+    clock : Clock, optional
+        The time SYNC, heartbeats and the watchdog keep; the wall clock by default (see
+        :class:`ClockedNetwork` for a simulated one).
     """
 
-    def __init__(self, bus: can.BusABC, settings: NetworkSettings) -> None:
+    def __init__(self, bus: can.BusABC, settings: NetworkSettings, clock: Clock | None = None) -> None:
         self.settings = settings
-        self.network = canopen.Network(bus)
+        self.clock = clock or WallClock()
+        self.network = ClockedNetwork(bus, self.clock)
         self.network.NOTIFIER_CYCLE = 0.1  # how long closing waits for the receive thread
         self.network.connect()
         raise_receive_priority(self.network)
@@ -325,9 +409,18 @@ class Cia402Network:
         self._stream: tuple[Callable[[float], Mapping[str, float]], int] | None = None  # (motion.at, first SYNC)
         self._stop = threading.Event()
         self._producer: threading.Thread | None = None
-        self._watchdog = threading.Thread(target=self._watch, name="cia402-watchdog", daemon=True)
-        self._watchdog.start()
-        raise_priority(self._watchdog, WATCHDOG_PRIORITY)
+        self._clocked: list[Periodic] = []  # on a simulated clock: its SYNC, heartbeat and watchdog events
+        # canopen gives the master no heartbeat-timeout callback: check every quarter heartbeat
+        # period, so a silent drive is reported within 2.5 + 0.25 periods (< 3).
+        watch_period = min(settings.heartbeat / 4, 0.05)
+        if self.clock.realtime:
+            self._watchdog: threading.Thread | None = threading.Thread(
+                target=self._watch, args=(watch_period,), name="cia402-watchdog", daemon=True)
+            self._watchdog.start()
+            raise_priority(self._watchdog, WATCHDOG_PRIORITY)
+        else:  # simulated time: the clock's events, run in the controller's thread; nothing stalls
+            self._watchdog = None
+            self._clocked.append(self.clock.every(watch_period, self._check_axes, "cia402-watchdog"))
 
     def add_axis(self, drive: DriveSettings, timeout: float = 5.0) -> Cia402Axis:
         """Configure drive ``drive`` over SDO, start it (NMT OPERATIONAL) and return its axis."""
@@ -340,6 +433,13 @@ class Cia402Network:
     def start(self) -> None:
         """Start the master heartbeat and the SYNC producer (once all axes are configured)."""
         self._heartbeat_on = self._sync_on = True
+        if not self.clock.realtime:
+            if not self._clocked[1:]:  # SYNC and heartbeat as events of the simulated clock
+                every = self.clock.every
+                self._clocked += [every(self.settings.cycle, self._clocked_step(self._send_sync), "cia402-sync"),
+                                  every(self.settings.heartbeat, self._clocked_step(self._send_heartbeat),
+                                        "cia402-heartbeat")]
+            return
         if self._producer is None:
             self._producer = threading.Thread(target=self._produce, name="cia402-sync", daemon=True)
             self._producer.start()
@@ -372,9 +472,12 @@ class Cia402Network:
         for axis in self.axes.values():
             axis.close()
         self._stop.set()
+        for event in self._clocked:
+            event.cancel()
         if self._producer is not None:
             self._producer.join(timeout=1.0)
-        self._watchdog.join(timeout=1.0)
+        if self._watchdog is not None:
+            self._watchdog.join(timeout=1.0)
         self.network.disconnect()
         for drive in self.sim_drives:
             drive.close()
@@ -389,22 +492,42 @@ class Cia402Network:
         while not self._stop.is_set():
             now = time.monotonic()
             try:
-                if self._heartbeat_on and now >= next_heartbeat:
-                    self.network.send_message(0x700 + self.settings.master_node_id, [0x05])
+                if now >= next_heartbeat:
+                    self._send_heartbeat()
                     next_heartbeat = max(next_heartbeat + heartbeat, now)
-                if self._sync_on and now >= next_sync:
-                    self._stream_setpoints()
-                    for axis in list(self.axes.values()):
-                        axis._before_sync()
-                    self.network.send_message(0x80, b"")
-                    self.syncs += 1
-                    for axis in list(self.axes.values()):
-                        axis._after_sync()
+                if now >= next_sync:
+                    self._send_sync()
                     next_sync = max(next_sync + cycle, now)
             except can.CanError as exc:
                 self._bus_failed(exc)
                 return
             self._stop.wait(max(0.0, min(next_sync, next_heartbeat) - time.monotonic()))
+
+    def _send_heartbeat(self) -> None:
+        if self._heartbeat_on:
+            self.network.send_message(0x700 + self.settings.master_node_id, [0x05])
+
+    def _send_sync(self) -> None:
+        if not self._sync_on:
+            return
+        self._stream_setpoints()
+        for axis in list(self.axes.values()):
+            axis._before_sync()
+        self.network.send_message(0x80, b"")
+        self.syncs += 1
+        for axis in list(self.axes.values()):
+            axis._after_sync()
+
+    def _clocked_step(self, send: Callable[[], None]) -> Callable[[], None]:
+        """``send`` as a simulated clock's event: a bus that fails ends SYNC and heartbeat."""
+        def step() -> None:
+            if self.bus_error is not None:
+                return
+            try:
+                send()
+            except can.CanError as exc:
+                self._bus_failed(exc)
+        return step
 
     def _stream_setpoints(self) -> None:
         stream = self._stream
@@ -426,18 +549,19 @@ class Cia402Network:
         for axis in list(self.axes.values()):
             axis._raise_fault(self.bus_error)
 
-    def _watch(self) -> None:
-        # canopen gives the master no heartbeat-timeout callback: poll every quarter heartbeat
-        # period, so a silent drive is reported within 2.5 + 0.25 periods (< 3). Time this thread
-        # was not scheduled (the process stalled: a loaded CPU, a long call holding the GIL) is the
-        # master's silence, not the drive's: it is not counted against the drive.
-        period = min(self.settings.heartbeat / 4, 0.05)
+    def _watch(self, period: float) -> None:
+        # Time this thread was not scheduled (the process stalled: a loaded CPU, a long call holding
+        # the GIL) is the master's silence, not the drive's: it is not counted against the drive.
         last = time.monotonic()
         while not self._stop.wait(period):
             now = time.monotonic()
             stalled, last = max(0.0, now - last - 2 * period), now
-            for axis in list(self.axes.values()):
-                axis._check_alive(now, stalled)
+            self._check_axes(now, stalled)
+
+    def _check_axes(self, now: float | None = None, stalled: float = 0.0) -> None:
+        now = self.clock.monotonic() if now is None else now
+        for axis in list(self.axes.values()):
+            axis._check_alive(now, stalled)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -463,7 +587,7 @@ class Cia402Axis(Axis):
         self._rejected = 0  # feedback PDOs of the wrong length
         self._silent = False  # the drive stopped answering: no orderly shutdown over SDO
         self._rpdo_lock = threading.Lock()  # RPDO1 is written by the caller and by the TPDO callback (PP)
-        self._feedback_changed = threading.Condition()
+        self._tpdo_arrived = threading.Event()
         self._heartbeat_arrived = threading.Event()
         od = load_object_dictionary(drive.eds, drive.node_id)
         self.node = BaseNode402(drive.node_id, od)
@@ -484,7 +608,7 @@ class Cia402Axis(Axis):
     def _configure(self, timeout: float) -> None:
         node, settings = self.node, self._net.settings
         node.nmt.state = "PRE-OPERATIONAL"
-        node.sdo.RESPONSE_TIMEOUT = max(0.3, min(timeout, 1.0))
+        node.sdo.RESPONSE_TIMEOUT = max(0.3, min(timeout, 1.0)) if self._net.clock.realtime else SIMULATED_WAIT
         node.sdo.MAX_RETRIES = SDO_ATTEMPTS  # a lost SDO answer is asked again; canopen logs each retry
         self._step = "reading 0x1000 (device type)"
         device_type = node.sdo[0x1000].raw
@@ -493,7 +617,9 @@ class Cia402Axis(Axis):
         self._step = "writing 0x1017 (producer heartbeat)"
         node.sdo[0x1017].raw = round(settings.heartbeat * 1000)
         self._step = "waiting for its heartbeat"
-        node.nmt.wait_for_heartbeat(timeout)
+        self._heartbeat_arrived.clear()
+        if not self._net.clock.wait(self._heartbeat_arrived, timeout):
+            raise NmtError(f"no heartbeat within {timeout} s")
         self._write_optional(0x1016, 1, settings.master_node_id << 16 | round(3 * settings.heartbeat * 1000))
         self._write_optional(0x1006, 0, round(settings.cycle * 1e6))
         self._step = "mapping the PDOs"
@@ -516,7 +642,7 @@ class Cia402Axis(Axis):
             node.nmt.state = "OPERATIONAL"
             for _ in range(2):  # the first heartbeat may have left before the command arrived
                 self._heartbeat_arrived.clear()
-                if not self._heartbeat_arrived.wait(timeout):
+                if not self._net.clock.wait(self._heartbeat_arrived, timeout):
                     raise NmtError(f"no heartbeat within {timeout} s")
             if node.nmt.state == "OPERATIONAL":
                 return
@@ -599,11 +725,12 @@ class Cia402Axis(Axis):
             if not supported >> (mode - 1) & 1:
                 raise DriveFault(f"axis {self.name}: drive does not support mode {mode} (0x6502 = 0x{supported:X})")
         self.node.sdo[0x6060].raw = mode
-        deadline = time.monotonic() + timeout
+        clock = self._net.clock
+        deadline = clock.monotonic() + timeout
         while self.node.sdo[0x6061].raw != mode:
-            if time.monotonic() > deadline:
+            if clock.monotonic() > deadline:
                 raise DriveFault(f"axis {self.name}: drive did not switch to mode {mode} (0x6061)")
-            time.sleep(0.01)
+            clock.sleep(0.01)
 
     # -- Axis back end -------------------------------------------------------------------------------
     def _enable(self, timeout: float) -> None:
@@ -668,8 +795,7 @@ class Cia402Axis(Axis):
 
     def wait_for_feedback(self, timeout: float = 1.0) -> AxisFeedback:
         """Block until the next TPDO1 arrives (one control cycle) and return the feedback."""
-        with self._feedback_changed:
-            self._feedback_changed.wait(timeout)
+        self._await_tpdo(timeout)
         return self._feedback()
 
     def _close(self) -> None:
@@ -679,7 +805,7 @@ class Cia402Axis(Axis):
         try:
             self._disable()
             for _ in range(2):  # the drive applies it at the next SYNC; its TPDO after that confirms
-                self.node.tpdo[1].wait_for_reception(5 * self._net.settings.cycle)
+                self._await_tpdo(5 * self._net.settings.cycle)
             self._write_optional(0x1016, 1, 0)
         except (can.CanError, SdoError, DriveFault) as exc:
             logger.warning("axis %s: orderly shutdown incomplete: %s", self.name, exc)
@@ -702,16 +828,21 @@ class Cia402Axis(Axis):
 
     def _transition(self, controlword: int, state: str, timeout: float) -> None:
         self._controlword(controlword)
-        deadline = time.monotonic() + timeout
+        deadline = self._net.clock.monotonic() + timeout
         while self.node.state != state:
-            if time.monotonic() > deadline:
+            if self._net.clock.monotonic() > deadline:
                 raise DriveFault(f"axis {self.name}: drive did not reach {state} (it is {self.node.state})")
             self._fresh_statusword(timeout)
 
     def _fresh_statusword(self, timeout: float) -> int:
-        if self.node.tpdo[1].wait_for_reception(timeout) is None:
+        if not self._await_tpdo(timeout):
             raise DriveFault(f"axis {self.name}: no statusword from node {self.node.id} within {timeout} s")
         return self.node.statusword
+
+    def _await_tpdo(self, timeout: float) -> bool:
+        """Wait (on the network's clock) for the next TPDO1; whether one came within ``timeout`` s."""
+        self._tpdo_arrived.clear()
+        return self._net.clock.wait(self._tpdo_arrived, timeout)
 
     # -- from the network's SYNC thread ---------------------------------------------------------------
     def _before_sync(self) -> None:
@@ -740,7 +871,7 @@ class Cia402Axis(Axis):
         silent_since = self._deficits[-missing][1] if missing < len(self._deficits) else first_count
         if silent_since == count:  # one run of silence, not scattered losses
             self._silent = True
-            age = time.monotonic() - (self._last_heartbeat or math.nan)
+            age = self._net.clock.monotonic() - (self._last_heartbeat or math.nan)
             self._raise_fault(f"feedback lost: no TPDO for {missing + FEEDBACK_GRACE} SYNC cycles, last heartbeat "
                               f"{age * 1e3:.0f} ms ago (the drive silent or the bus interrupted){rejected}")
         else:
@@ -749,7 +880,7 @@ class Cia402Axis(Axis):
 
     # -- callbacks (from the CAN notifier thread: never block, never SDO) -----------------------
     def _on_heartbeat(self, state: int) -> None:
-        self._last_heartbeat = time.monotonic()
+        self._last_heartbeat = self._net.clock.monotonic()
         self._heartbeat_arrived.set()
         if state == 0 and self._supervised and self._fault is None:
             self._raise_fault("drive rebooted (boot-up message): its configuration and power state are lost")
@@ -763,15 +894,14 @@ class Cia402Axis(Axis):
                              f"{expected}: rejected")
 
     def _on_tpdo(self, pdo: Any) -> None:
-        self._last_tpdo = time.monotonic()
+        self._last_tpdo = self._net.clock.monotonic()
         if self._first_sync is None:
             self._first_sync = self._net.syncs
         self._tpdos += 1
         if self._pp_pending and self.node.tpdo_values.get(0x6041, 0) & 0x1000:
             self._pp_pending = False
             self._controlword(State402.CW_OPERATION_ENABLED)
-        with self._feedback_changed:
-            self._feedback_changed.notify_all()
+        self._tpdo_arrived.set()
 
     def _on_emcy(self, emcy: EmcyError) -> None:
         if emcy.code & 0xFF00 == 0:
@@ -814,8 +944,9 @@ def _type_range(entry: canopen.objectdictionary.ODVariable) -> tuple[int, int]:
 
 
 #: Starts drives for a network before the master configures them (the config's ``plugins.drives``):
-#: ``(drives, bus mapping, network settings, where) -> started drives``, each with ``close()``.
-DriveStarter = Callable[[Sequence[DriveSettings], Any, NetworkSettings, str], list[Any]]
+#: ``(drives, bus mapping, network settings, where[, clock=]) -> started drives``, each with ``close()``;
+#: ``clock`` is passed only when it is a simulated one (only drives simulated in this process keep it).
+DriveStarter = Callable[..., list[Any]]
 
 
 def axes_from_config(
@@ -826,6 +957,7 @@ def axes_from_config(
     timeout: float = 5.0,
     start_drives: DriveStarter | None = None,
     bus_wrapper: Callable[[can.BusABC], can.BusABC] | None = None,
+    clock: Clock | None = None,
 ) -> tuple[Cia402Network, dict[str, Axis]]:
     """Open the bus, configure the drives of the ``drives`` section and return the network and its axes.
 
@@ -833,6 +965,8 @@ def axes_from_config(
     ``drivers.sim.drive:start_simulated_drives``) starts the drives first; a truck's drives are
     powered on their own and need none. The network closes what it started.
     ``bus_wrapper`` wraps the master's connection (e.g. :class:`drivers.lossy_bus.LossyBus`).
+    Master and started drives keep ``clock``'s time (the wall clock by default); a simulated clock
+    needs drives started in this process on python-can's virtual bus, unwrapped.
     """
     if not isinstance(drives_mapping, Mapping):
         raise ConfigError(f"{where} drives: expected a mapping, got {type(drives_mapping).__name__}")
@@ -846,9 +980,14 @@ def axes_from_config(
     ids = [d.node_id for d in drives] + [settings.master_node_id]
     if len(set(ids)) != len(ids):
         raise ConfigError(f"{where} drives: node ids must be unique (master included), got {ids}")
-    sim_drives = start_drives(drives, bus_mapping, settings, where) if start_drives is not None else []
+    clock = clock or WallClock()
+    if not clock.realtime and (start_drives is None or bus_wrapper is not None):
+        raise ConfigError(f"{where} drives: a simulated clock needs drives simulated in this process (plugins.drives) "
+                          "on an unwrapped bus")
+    started = {} if clock.realtime else {"clock": clock}
+    sim_drives = start_drives(drives, bus_mapping, settings, where, **started) if start_drives is not None else []
     bus = open_bus(bus_mapping, f"{where} bus")
-    net = Cia402Network(bus if bus_wrapper is None else bus_wrapper(bus), settings)
+    net = Cia402Network(bus if bus_wrapper is None else bus_wrapper(bus), settings, clock)
     net.sim_drives = sim_drives
     try:
         for drive in drives:

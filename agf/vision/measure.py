@@ -15,6 +15,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -24,7 +25,7 @@ from numpy.typing import NDArray
 
 from agf.camera import CameraModel
 from agf.config import ForkGeometry, SearchVolume
-from agf.errors import MeasurementError
+from agf.errors import MeasurementError, PalletHiddenError
 from agf.geometry import Transform
 from agf.measurement import PalletMeasurement
 from agf.pallets import PalletType
@@ -237,7 +238,7 @@ def measure_pallet(
 
     starts = [prior.euler[1]] if prior is not None else [0.0, -volume.pitch_max / 2, volume.pitch_max / 2]
     attempts = [(similarity, assumed) for similarity in config.similarities for assumed in starts]
-    failures: list[str] = []
+    failures: list[MeasurementError] = []
     for similarity, assumed in attempts:
         search = dataclasses.replace(config.pose, similarity=similarity)
         # Searched again near a pose of this frame: its rivals were judged in the wide search, so one candidate.
@@ -248,15 +249,9 @@ def measure_pallet(
             pose, agreement = confirmed(placed + [pose])
             break
         except MeasurementError as exc:
-            failures.append(str(exc))
+            failures.append(exc)
     else:
-        others = sorted(set(failures[1:]) - {failures[0]})
-        also = (f" (with the pose searched at pitch +-{math.degrees(volume.pitch_max / 2):.1f} deg and by "
-                f"{' and '.join(config.similarities[1:])} too" if others else "")
-        raise MeasurementError(
-            failures[0] + (also + ": " + "; ".join(others) + ")" if others else ""),
-            found=Findings(seen.get("pose"), seen.get("evidence")),
-        )
+        raise _refusal(failures, volume, config.similarities, Findings(seen.get("pose"), seen.get("evidence")))
     timing["total"] = (time.perf_counter() - start) * 1e3
     measurement = PalletMeasurement(
         pallet_in_camera=pose.pallet_in_camera,
@@ -269,6 +264,23 @@ def measure_pallet(
         timing_ms=timing,
     )
     return MeasureDetail(measurement, pose, evidence)
+
+
+def _refusal(
+    failures: list[MeasurementError], volume: SearchVolume, similarities: Sequence[str], found: Findings
+) -> MeasurementError:
+    """One error for the failed searches, carrying what the vision ``found``: the first one's reason,
+    the others' after it. When the forks hid the pallet in any of them, a :class:`PalletHiddenError`
+    with that search's rough pose, as moving the forks out of the view may then give a measurement."""
+    reasons = [str(f) for f in failures]
+    others = sorted(set(reasons[1:]) - {reasons[0]})
+    also = (f" (with the pose searched at pitch +-{math.degrees(volume.pitch_max / 2):.1f} deg and by "
+            f"{' and '.join(similarities[1:])} too" if others else "")
+    message = reasons[0] + (also + ": " + "; ".join(others) + ")" if others else "")
+    hidden = next((f for f in failures if isinstance(f, PalletHiddenError)), None)
+    if hidden is None:
+        return MeasurementError(message, found=found)
+    return PalletHiddenError(message, hidden.pallet_in_fork, found=found)
 
 
 def next_pitch(searched: float, measured: float, last_change: float) -> tuple[float, float]:

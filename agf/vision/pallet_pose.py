@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 from agf.camera.base import CameraModel
 from agf.camera.grid import pixels_from_grid
 from agf.config import ForkGeometry, SearchVolume
-from agf.errors import MeasurementError
+from agf.errors import MeasurementError, PalletHiddenError
 from agf.geometry import Transform, matrix_from_euler
 from agf.vision.edges import EdgeSearch, search_edges
 from agf.vision.face_model import FaceModel
@@ -858,7 +858,9 @@ def check_pose_estimate(
     if not valid.all():
         raise MeasurementError("the pallet is partly out of view: a corner of its front face is outside the image")
     if occluded > config.max_occluded:
-        raise MeasurementError(f"the forks hide {occluded:.0%} of the pallet's pocket edges from the camera")
+        raise PalletHiddenError(
+            f"the forks hide {occluded:.0%} of the pallet's pocket edges from the camera", estimate.pallet_in_fork
+        )
     if score < config.min_score:
         raise MeasurementError(f"no convincing pallet front face: similarity {score:.2f} < {config.min_score:.2f}")
     if margin < config.min_margin:

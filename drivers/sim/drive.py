@@ -16,8 +16,9 @@ device's file so it stands in for that device) and implements what canopen's ``L
 
 Time: the drive advances its motion by one cycle period (0x1006, else the ``cycle`` argument) on
 every SYNC it receives, so a test that sends SYNCs gets exactly the same motion every run. When the
-SYNCs stop during a stop ramp (the master is gone), the supervisor thread keeps stepping the ramp on
-its own clock so the axis still comes to rest.
+SYNCs stop during a stop ramp (the master is gone), the supervisor keeps stepping the ramp on its own
+so the axis still comes to rest. Heartbeat, master-heartbeat supervision and that ramp keep the time
+of an injected :class:`agf.clock.Clock`: the wall clock by default, or the simulated world's clock.
 
 Run as a process: ``python -m drivers.sim.drive --node-id N --interface udp_multicast``. It serves
 until SIGINT, SIGTERM or ``quit`` on standard input, and says which ended it; commands on standard
@@ -34,7 +35,6 @@ import signal
 import struct
 import sys
 import threading
-import time
 from collections.abc import Sequence
 from datetime import UTC, datetime
 from pathlib import Path
@@ -43,10 +43,12 @@ from typing import Any
 import can
 import canopen
 
+from agf.clock import Clock, Periodic, WallClock
 from agf.errors import ConfigError
 from drivers.can_bus import open_bus
 from drivers.cia402_axis import (
     DEFAULT_EDS,
+    ClockedNetwork,
     DriveSettings,
     NetworkSettings,
     load_object_dictionary,
@@ -97,12 +99,15 @@ class SimDrive:
         Motion step (s) per SYNC when the master has not written 0x1006.
     lag : float
         Time constant (s) of the position loop at no load; it grows linearly with the load.
+    clock : Clock, optional
+        The time its heartbeat and supervision keep; the wall clock by default.
     """
 
     def __init__(self, node_id: int, bus: can.BusABC, eds: str | Path = DEFAULT_EDS, *,
-                 cycle: float = 0.01, lag: float = 0.02) -> None:
+                 cycle: float = 0.01, lag: float = 0.02, clock: Clock | None = None) -> None:
         self.node = canopen.LocalNode(node_id, load_object_dictionary(eds, node_id))
-        self.network = canopen.Network(bus)
+        self.clock = clock or WallClock()
+        self.network = ClockedNetwork(bus, self.clock)
         self.network.NOTIFIER_CYCLE = 0.1  # how long closing waits for the receive thread
         self.network.add_node(self.node)
         self._lock = threading.RLock()
@@ -142,7 +147,7 @@ class SimDrive:
         if 0x1006 in self.node.object_dictionary:  # our cycle until a master writes its own
             self.node.data_store[0x1006] = {0: struct.pack("<I", round(cycle * 1e6))}
         self.mode = self._param(0x6060, 0, 0) if self._param(0x6060, 0, 0) in (1, 8) else 0
-        self._supervisor = threading.Thread(target=self._supervise, name=f"sim-drive-{node_id}", daemon=True)
+        self._supervisor: Periodic | None = None
 
     @classmethod
     def open(cls, node_id: int, bus: can.BusABC, **kwargs: Any) -> SimDrive:
@@ -156,8 +161,11 @@ class SimDrive:
         self.network.connect()
         raise_receive_priority(self.network, DRIVE_PRIORITY)
         self._boot()
-        self._supervisor.start()
-        raise_priority(self._supervisor, DRIVE_PRIORITY)
+        self._supervised_at = self.clock.monotonic()
+        self._supervisor = self.clock.every(0.005, self._supervise, f"sim-drive-{self.node.id}")
+        thread = getattr(self._supervisor, "thread", None)  # the wall clock's thread
+        if thread is not None:
+            raise_priority(thread, DRIVE_PRIORITY)
 
     def _boot(self) -> None:
         self._configure_master_heartbeat(self._param(0x1016, 1, 0))
@@ -174,8 +182,8 @@ class SimDrive:
         """Stop everything and release the bus."""
         self._stop.set()
         self.node.nmt.stop_heartbeat()
-        if self._supervisor.is_alive():
-            self._supervisor.join(timeout=1.0)
+        if self._supervisor is not None:
+            self._supervisor.cancel()
         if self.network.bus is not None:
             self.network.disconnect()
 
@@ -368,7 +376,7 @@ class SimDrive:
     def _on_sync(self, can_id: int, data: bytes, timestamp: float) -> None:
         if self._stop.is_set():
             return
-        self._last_sync = time.monotonic()
+        self._last_sync = self.clock.monotonic()
         if self.node.nmt.state != "OPERATIONAL":
             return
         if self._pdo_dirty:
@@ -381,25 +389,24 @@ class SimDrive:
         self._send_tpdos()
 
     def _on_master_heartbeat(self, can_id: int, data: bytes, timestamp: float) -> None:
-        self._master_seen = time.monotonic()
+        self._master_seen = self.clock.monotonic()
 
     def _supervise(self) -> None:
-        last = time.monotonic()
-        while not self._stop.wait(0.005):
-            now = time.monotonic()
-            # time this thread was not scheduled (the test bed's CPU busy, the GIL held) is not the
-            # master's silence: a drive's own microcontroller is never starved like that
-            stalled, last = max(0.0, now - last - 0.02), now
-            if stalled and self._master_seen is not None:
-                self._master_seen += stalled
-            seen, timeout = self._master_seen, self._master_timeout
-            if seen is not None and timeout and now - seen > timeout:
-                self._master_seen = None
-                self._fault(MASTER_HEARTBEAT)
-            cycle = self._cycle_period()
-            if self.state in ("QUICK STOP ACTIVE", "FAULT REACTION ACTIVE") and now - self._last_sync > 3 * cycle:
-                self.step(cycle)  # no SYNC any more: finish the stop ramp on our own clock
-                self._last_sync = now - 2 * cycle
+        """Every 5 ms: the master's heartbeat, and the stop ramp when the SYNCs have stopped."""
+        now = self.clock.monotonic()
+        # time this thread was not scheduled (the test bed's CPU busy, the GIL held) is not the
+        # master's silence: a drive's own microcontroller is never starved like that
+        stalled, self._supervised_at = max(0.0, now - self._supervised_at - 0.02), now
+        if stalled and self._master_seen is not None:
+            self._master_seen += stalled
+        seen, timeout = self._master_seen, self._master_timeout
+        if seen is not None and timeout and now - seen > timeout:
+            self._master_seen = None
+            self._fault(MASTER_HEARTBEAT)
+        cycle = self._cycle_period()
+        if self.state in ("QUICK STOP ACTIVE", "FAULT REACTION ACTIVE") and now - self._last_sync > 3 * cycle:
+            self.step(cycle)  # no SYNC any more: finish the stop ramp on our own clock
+            self._last_sync = now - 2 * cycle
 
     # -- CiA 402 power state machine ----------------------------------------------------------------
     def _on_controlword(self, word: int) -> None:
@@ -534,11 +541,14 @@ class SimDrive:
 
 
 def start_simulated_drives(
-    drives: Sequence[DriveSettings], bus_mapping: Any, settings: NetworkSettings, where: str
+    drives: Sequence[DriveSettings], bus_mapping: Any, settings: NetworkSettings, where: str,
+    clock: Clock | None = None,
 ) -> list[SimDrive]:
     """A simulated drive per configured axis, in this process, each on its own connection to the bus
-    (a :data:`drivers.cia402_axis.DriveStarter`: the default configuration's ``plugins.drives``)."""
-    return [SimDrive.open(d.node_id, open_bus(bus_mapping, f"{where} bus"), eds=d.eds, cycle=settings.cycle)
+    (a :data:`drivers.cia402_axis.DriveStarter`: the default configuration's ``plugins.drives``),
+    keeping ``clock``'s time (the wall clock by default)."""
+    return [SimDrive.open(d.node_id, open_bus(bus_mapping, f"{where} bus"), eds=d.eds, cycle=settings.cycle,
+                          clock=clock)
             for d in drives]
 
 

@@ -9,6 +9,7 @@ import dataclasses
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 
+from agf.clock import WallClock
 from agf.config import Config
 from agf.controller import PickController
 from agf.fleet.pick import PickRequest
@@ -49,7 +50,8 @@ class SimulatedFleetTruck(FleetTruck):
 
     @contextmanager
     def pick_session(self, request: PickRequest, progress: Callable[[str], None]) -> Iterator[PickController]:
-        with SimulatedWorld(self.config, self.scene) as world:
+        # a fleet manager talks in real time: the truck it dispatches keeps the wall clock
+        with SimulatedWorld(self.config, self.scene, WallClock()) as world:
             # What the controller measures and plans for is the fleet's request; the scene's own pallet
             # stays the truth the world renders and checks collisions against.
             world.pallet = self._pallets[request.load_type]

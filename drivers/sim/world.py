@@ -5,6 +5,10 @@ the default config and ``agf simulate``).
 The pallet is fixed in the truck frame; the camera moves with the forks, so every frame is rendered
 for the axes' actual positions. Every control cycle the tines are checked against the pallet's
 solid parts: a negative clearance is a collision, counted, never hidden.
+
+``agf simulate`` runs its picks on a simulated clock (:class:`agf.clock.SimulatedClock`): the same
+setpoints, drive physics and CAN messages as in real time, as fast as the CPU allows; ``agf run``
+(and a world with real drives, hardware in the loop) keeps wall-clock time.
 """
 
 from __future__ import annotations
@@ -14,7 +18,6 @@ import dataclasses
 import functools
 import json
 import math
-import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -22,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from agf.camera import load_camera
+from agf.clock import Clock, SimulatedClock, WallClock
 from agf.config import Config, load_calibration
 from agf.controller import ControllerConfig, PickController, PickResult
 from agf.errors import ConfigError, DriveFault, MeasurementError
@@ -42,6 +46,7 @@ from drivers.can_tap import CanTap
 from drivers.cia402_axis import axes_from_config
 from drivers.sim.campaign import make_backend, run_campaign
 from drivers.sim.collision import clearance, pallet_parts, tine_surface_points
+from drivers.sim.drive import start_simulated_drives
 from drivers.sim.fast_render import render_fast
 
 # Axes at the start of a pick (m, rad): reach 0.15 m leaves the 1.3 m stroke room for a pallet 400 mm
@@ -70,12 +75,20 @@ class RenderedCamera(FrameSource):
 
 
 class SimulatedWorld:
-    """Drives, pallet and camera of one simulated pick; a context manager that closes the bus."""
+    """Drives, pallet and camera of one simulated pick; a context manager that closes the bus.
 
-    def __init__(self, config: Config, scene: Scene, bus_wrapper: Any = None) -> None:
+    ``clock`` is the time the drives, the CANopen master and the controller keep: simulated by default
+    when the drives are simulated in this process on a virtual bus (see :func:`world_clock`).
+    ``bus_wrapper`` (the fault tests put drivers.lossy_bus between master and drives) wraps the
+    master's connection.
+    """
+
+    def __init__(self, config: Config, scene: Scene, clock: Clock | None = None, bus_wrapper: Any = None) -> None:
         if scene.pallet is None:
             raise ConfigError("a pick scene needs a 'pallet' (a calibration scene cannot be picked)")
         self.config, self.scene = config, scene
+        # the fault tests' lossy bus keeps wall time, as the fault matrix was measured on it
+        self.clock = clock or (WallClock() if bus_wrapper is not None else world_clock(config))
         self.camera = load_camera(scene.camera)
         self.mast = MastGeometry()
         self.pallet = load_pallets(config.vision.pallets)[scene.pallet.type]
@@ -83,7 +96,8 @@ class SimulatedWorld:
         self.network, self.axes = axes_from_config(
             config.sections["drives"], config.sections["bus"], f"{config.source}:", base_dir=config.source.parent,
             start_drives=drive_starter(config),
-            bus_wrapper=bus_wrapper,  # the fault tests put drivers.lossy_bus between master and drives
+            bus_wrapper=bus_wrapper,
+            clock=self.clock,
         )
         self.frames_lost = 0
         self.frame_truths: list[Transform] = []  # the true pallet_in_fork of each rendered frame
@@ -143,9 +157,10 @@ class SimulatedWorld:
         now = self.positions()
         share = self.pick_settings.motion_share  # the headroom the pick's own plans keep
         motion = plan_move(now, target, {n: a.limits.scaled(share) for n, a in self.axes.items()})
-        self.network.stream(lambda t: motion.at(min(t, motion.duration)))  # from the SYNC thread
-        deadline = time.monotonic() + 10 * motion.duration + 5.0  # SYNC time runs behind on a loaded CPU
-        while time.monotonic() < deadline and any(abs(p - target[n]) > 1e-4 for n, p in self.positions().items()):
+        self.network.stream(lambda t: motion.at(min(t, motion.duration)))  # from the SYNC thread or event
+        clock = self.clock
+        deadline = clock.monotonic() + 10 * motion.duration + 5.0  # SYNC time runs behind on a loaded CPU
+        while clock.monotonic() < deadline and any(abs(p - target[n]) > 1e-4 for n, p in self.positions().items()):
             next(iter(self.axes.values())).wait_for_feedback(timeout=0.2)
         self.network.stream(None)
 
@@ -180,6 +195,7 @@ class SimulatedWorld:
             progress=progress,
             recorder=recorder,
             streamer=self.network,
+            clock=self.clock,
         )
 
 
@@ -225,8 +241,23 @@ def pick_outcome(result: PickResult, world: SimulatedWorld) -> str:
     return "refused" if unsafe or (world.refusal is not None and world.refusal in reason) else "faulted"
 
 
+def world_clock(config: Config) -> Clock:
+    """A simulated clock when every drive is simulated in this process on python-can's virtual bus
+    (``plugins.drives: drivers.sim.drive:start_simulated_drives``, ``bus.interface: virtual``), else
+    the wall clock: real drives in the loop, or drives in other processes, keep real time."""
+    bus = config.sections["bus"] or {}
+    simulated = drive_starter(config) is start_simulated_drives and bus.get("interface") == "virtual"
+    return SimulatedClock() if simulated else WallClock()
+
+
 def pick_summary(result: PickResult, world: SimulatedWorld) -> dict[str, Any]:
+    """One pick's outcome. ``cycle_s`` is the truck's cycle: on a simulated clock the simulated seconds
+    plus the vision's compute time (measured, as a camera frame takes no rendering), on the wall clock
+    the seconds the pick took. ``wall_s`` is what it took here, rendering included."""
     final = world.scene_now().pallet.in_fork.to_dict()
+    cycle = sum(result.durations.values())
+    if not world.clock.realtime:
+        cycle += sum(m.timing_ms.get("total", 0.0) for m in result.measurements) / 1e3
     return {
         "ok": result.ok,
         "outcome": pick_outcome(result, world),
@@ -234,7 +265,9 @@ def pick_summary(result: PickResult, world: SimulatedWorld) -> dict[str, Any]:
         "reason": result.reason,
         "collision": world.min_clearance < 0,
         "min_clearance_mm": world.min_clearance * 1e3 if math.isfinite(world.min_clearance) else None,
-        "cycle_s": sum(result.durations.values()),
+        "cycle_s": cycle,
+        "wall_s": sum(result.wall_durations.values()),
+        "viewing_moves": len(result.views),
         "durations_s": result.durations,
         "measured": [m.pallet_in_fork.to_dict() for m in result.measurements],
         "truth": [t.to_dict() for t in world.measured_truths[: len(result.measurements)]],
@@ -270,7 +303,7 @@ def run_command(config: Config, *, plots: str | None = None, progress: bool = Tr
     scene_path = repo_path((config.sections.get("simulation") or {}).get("scene", "configs/scenes/pick.yaml"))
     scene = load_scene(scene_path)
     say = (lambda state: print(f"agf run: {state}", flush=True)) if progress else None
-    with pick_log(config, scene, "run") as log, SimulatedWorld(config, scene) as world:
+    with pick_log(config, scene, "run") as log, SimulatedWorld(config, scene, clock=WallClock()) as world:
         result = world.controller(say, log).run()
         summary = {**pick_summary(result, world), "log": str(log.path)}
     if plots:
@@ -343,3 +376,4 @@ def simulate_command(
         progress=progress,
     )
     return {**({"plots": plots} if plots else {}), **summary}
+

@@ -4,7 +4,6 @@ rendered through the camera model for the forks' actual position, collisions che
 from __future__ import annotations
 
 import math
-import time
 
 import cv2
 import pytest
@@ -36,9 +35,9 @@ def run_with(inject=None, when_state="aligning", after_cycles=20):
         controller.on_cycle = on_cycle
         result = controller.run()
         summary = pick_summary(result, world)
-        time.sleep(1.0)  # the quick-stop ramp
+        world.clock.sleep(1.0)  # the quick-stop ramp
         before = world.positions()
-        time.sleep(0.5)
+        world.clock.sleep(0.5)
         after = world.positions()
         states = {name: axis.feedback().state for name, axis in world.axes.items()}
     return result, summary, before, after, states

@@ -82,6 +82,14 @@ def test_timing_summary_orders_samples():
         timing_summary([])
 
 
+@pytest.mark.parametrize("argv", [["--random", "30", "--only", "30"], ["--random", "30", "--only", "-1"],
+                                  ["--scene", "configs/scenes/pick.yaml", "--only", "0"]])
+def test_simulate_only_names_a_pick_of_the_random_ones(capsys, argv):
+    code, payload = run_json(capsys, "simulate", *argv, "--json")
+    assert code == EXIT_USAGE
+    assert "--only: expected a pick number 0..N-1 of --random N" in payload["error"]
+
+
 def test_simulate_refuses_a_non_positive_job_count(capsys):
     code, payload = run_json(capsys, "simulate", "--random", "2", "--jobs", "0", "--json")
     assert code == EXIT_USAGE

@@ -1,0 +1,184 @@
+"""One pick on the wall clock and on the simulated clock: the same setpoints, drive physics and CAN
+messages give the same trajectory. And the pick the forks hid the pallet in (random pick 16 of
+``agf simulate --random 30 --seed 4242`` as campaigns drew their scenes before each pick had a generator
+of its own) now moves the forks to a viewing pose and inserts."""
+
+from __future__ import annotations
+
+import contextlib
+
+import numpy as np
+import pytest
+
+from agf.clock import Clock, SimulatedClock, WallClock
+from agf.config import load_config
+from agf.errors import DriveFault, MeasurementError
+from agf.paths import DEFAULT_CONFIG, repo_path
+from agf.scene import load_scene
+from drivers.sim import world as world_module
+from drivers.sim.world import RenderedCamera, SimulatedWorld, pick_summary, simulate_command
+
+CONFIG = load_config(DEFAULT_CONFIG)
+SCENE = load_scene(repo_path("configs/scenes/pick.yaml"))
+HIDDEN = repo_path("tests/data/scenes/robust/loaded-below-the-forks-hidden.yaml")
+
+
+class SharedFrames(RenderedCamera):
+    """Frames rendered once, by the simulated-clock pick, and handed to the wall-clock pick where its
+    forks stand where they stood (within the controller's arrival tolerance, 2 mm), with their
+    measurements: the wall-clock pick then computes nothing heavy that could starve its real-time
+    threads on a busy machine, and both picks plan from the same measurements."""
+
+    def __init__(self, world: SimulatedWorld, taken: list[tuple[dict[str, float], np.ndarray]]) -> None:
+        super().__init__(world)
+        self.taken = taken
+
+    def _read(self, timeout: float) -> np.ndarray | None:
+        now = self.world.positions()
+        for positions, image in self.taken:
+            if all(abs(positions[n] - now[n]) <= 2e-3 for n in now):
+                return image
+        image = super()._read(timeout)
+        self.taken.append((now, image))
+        return image
+
+
+def pick_on(clock: Clock, taken: list, measured: dict) -> tuple[dict, dict, dict[str, float]]:
+    with SimulatedWorld(CONFIG, SCENE, clock) as world:
+        settle(world)
+        controller = world.controller()
+        controller.frames = SharedFrames(world, taken)
+        measure = controller.measure
+
+        def measure_once(frame, prior):
+            if id(frame.image) not in measured:
+                measured[id(frame.image)] = measure(frame, prior)
+            return measured[id(frame.image)]
+
+        controller.measure = measure_once
+        if clock.realtime:
+            controller.on_cycle = None  # no collision check: less work in the real-time loop
+        result = controller.run()
+        world.clock.sleep(0.5)  # the axes come to rest on the last setpoints
+        rest = world.positions()
+        counts = {name: abs(axis.drive.counts_per_unit) for name, axis in world.network.axes.items()}
+        return {"result": result, "summary": pick_summary(result, world)}, counts, rest
+
+
+def settle(world: SimulatedWorld) -> None:
+    """Let the axes come to rest on the start pose, so both picks start from the same one: on a busy
+    machine the wall clock's SYNCs run late and the set-up move ends short of it."""
+    target = {name: round(world.positions()[name] * axis.drive.counts_per_unit)
+              for name, axis in world.network.axes.items()}
+    for _ in range(500):
+        counts = {name: round(world.positions()[name] * axis.drive.counts_per_unit)
+                  for name, axis in world.network.axes.items()}
+        if counts == target:
+            return
+        target = counts
+        world.clock.sleep(0.1)
+
+
+def rows(result, state: str, key: str, axis: str) -> tuple[np.ndarray, np.ndarray]:
+    """Time since the motion's first cycle (s) and one axis's setpoint or actual position."""
+    log = [row for row in result.log if row["state"] == state]
+    t = np.array([row["t"] for row in log])
+    return t - t[0], np.array([row[key][axis] for row in log])
+
+
+@pytest.fixture(scope="module")
+def both_clocks():
+    taken: list = []
+    measured: dict = {}
+    simulated = pick_on(SimulatedClock(), taken, measured)
+    faults = []
+    for _ in range(3):  # real time on a machine shared by many: its threads may be starved
+        try:
+            wall = pick_on(WallClock(), taken, measured)
+        except DriveFault as exc:
+            faults.append(str(exc))
+            continue
+        if wall[0]["result"].ok or "drive fault" not in (wall[0]["result"].reason or ""):
+            break
+        faults.append(wall[0]["result"].reason)
+    else:
+        pytest.skip(f"the wall-clock pick faulted three times on this busy machine: {faults}")
+    assert len(taken) == 2 and len(measured) == 2  # the wall-clock pick saw the same two frames
+    return wall, simulated
+
+
+def test_a_pick_on_simulated_time_takes_the_same_trajectory_as_on_wall_time(both_clocks):
+    (wall, counts, wall_rest), (simulated, _, sim_rest) = both_clocks
+    a, b = wall["result"], simulated["result"]
+    assert a.ok and b.ok, (a.reason, b.reason)
+    assert [m.pallet_in_fork.to_dict() for m in a.measurements] == [m.pallet_in_fork.to_dict() for m in b.measurements]
+    for name, count in counts.items():
+        one = 1.0 / count
+        assert a.plan.align[name] == pytest.approx(b.plan.align[name], abs=one)
+        assert a.plan.insert.get(name, 0.0) == pytest.approx(b.plan.insert.get(name, 0.0), abs=one)
+        assert wall_rest[name] == pytest.approx(sim_rest[name], abs=one)
+    cycle = CONFIG.sections["drives"]["cycle_ms"] / 1e3
+    # The align motion starts from the same pose on both clocks; the insert motion from wherever the
+    # align motion arrived, which on the wall clock is anywhere within the arrival tolerance.
+    for name, count in counts.items():
+        t_wall, set_wall = rows(a, "aligning", "setpoint", name)
+        t_sim, set_sim = rows(b, "aligning", "setpoint", name)
+        assert np.allclose(np.diff(t_sim), cycle)  # exactly one SYNC per cycle of simulated time
+        # The same motion: the simulated setpoints, interpolated at the wall clock's cycle times,
+        # within a count (plus the interpolation's own error, under a count at these accelerations).
+        assert np.abs(np.interp(t_wall, t_sim, set_sim) - set_wall).max() <= 2.0 / count
+        _, actual_wall = rows(a, "aligning", "actual", name)
+        _, actual_sim = rows(b, "aligning", "actual", name)
+        # The wall clock sends a setpoint up to a cycle after the SYNC it belongs to (more when the
+        # machine is busy), so the actual positions may lag by what the axis covers in two cycles.
+        speed = np.abs(np.gradient(set_sim, t_sim)).max()
+        lag = np.abs(np.interp(t_wall, t_sim, actual_sim) - actual_wall).max()
+        assert lag <= 2.0 / count + 2 * cycle * speed, (name, lag)
+
+
+def test_on_simulated_time_the_vision_takes_no_motion_time(both_clocks):
+    (wall, *_), (simulated, *_) = both_clocks
+    b = simulated["result"]
+    assert b.durations["measuring"] == 0.0 and b.durations["verifying"] == 0.0
+    assert b.wall_durations["acquiring"] > 0.1  # rendering took wall time, but no simulated time
+    # The motion states last what the motion does, on both clocks.
+    for state in ("aligning", "inserting"):
+        assert b.durations[state] == pytest.approx(wall["result"].durations[state], abs=0.5)
+    assert simulated["summary"]["cycle_s"] > sum(b.durations.values())  # the vision's compute time counted
+
+
+def test_forks_hiding_the_pallet_move_to_a_viewing_pose_and_the_pick_inserts():
+    scene = load_scene(HIDDEN)
+    with SimulatedWorld(CONFIG, scene) as world:
+        start = world.positions()
+        result = world.controller().run()
+        summary = pick_summary(result, world)
+    assert result.ok, result.reason
+    assert len(result.views) == 1 and "the forks hide" in result.views[0]
+    assert summary["viewing_moves"] == 1 and not summary["collision"]
+    viewing = [row for row in result.log if row["state"] == "viewing"]
+    # lift only, level with the pockets: the pallet stood 292 mm below the forks
+    assert viewing[-1]["actual"]["lift"] - start["lift"] == pytest.approx(-0.292, abs=0.02)
+    assert all(abs(row["actual"]["reach"] - start["reach"]) < 1e-4 for row in viewing)
+
+
+def test_only_runs_one_pick_of_a_campaign_as_the_campaign_draws_it(monkeypatch, tmp_path):
+    drawn: list = []
+
+    class Refused:  # records the scene it is given; the pick itself is tested above
+        def __init__(self, config, scene, *args, **kwargs):
+            drawn.append(scene)
+            raise MeasurementError("not picked")
+
+    monkeypatch.setattr(world_module, "SimulatedWorld", Refused)
+    monkeypatch.setattr(world_module, "pick_log", lambda *args: contextlib.nullcontext(None))
+    whole = simulate_command(CONFIG, scene=None, runs=30, seed=4242, jobs=1, out=str(tmp_path / "all"),
+                             progress=False)
+    assert whole["runs"] == 30 and len(drawn) == 30
+    campaign, drawn[:] = list(drawn), []
+    alone = simulate_command(CONFIG, scene=None, runs=30, seed=4242, jobs=1, indices=[16],
+                             out=str(tmp_path / "one"), progress=False)
+    [scene] = drawn
+    assert alone["runs"] == 1 and alone["failures"][0]["run"] == 16
+    key = lambda s: (s.seed, s.pallet.in_fork.to_dict(), s.load, s.environment)  # noqa: E731
+    assert key(scene) == key(campaign[16]) and key(scene) != key(campaign[15])

@@ -1,0 +1,56 @@
+"""The viewing move: when the forks hide the pallet, lift only, level with its pockets, clear of it."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from agf.axis import AxisLimits
+from agf.config import ForkGeometry
+from agf.errors import AgfError
+from agf.geometry import Transform
+from agf.kinematics import MastGeometry, fork_in_truck_from_axes
+from agf.pallets import load_pallets
+from agf.paths import repo_path
+from agf.planner import viewing_axes
+
+MAST, FORKS = MastGeometry(), ForkGeometry()
+PALLET = load_pallets(repo_path("configs/pallets.yaml"))["jis-t11"]
+LIMITS = {
+    "lift": AxisLimits(0.0, 3.0, 0.4, 0.8, 4.0),
+    "reach": AxisLimits(0.0, 1.3, 0.25, 0.5, 2.5),
+    "tilt": AxisLimits(-0.1, 0.1, 0.07, 0.14, 0.7),
+}
+
+
+def view(pallet_in_fork: Transform, axes: dict[str, float], clearance: float = 0.1) -> dict[str, float]:
+    return viewing_axes(pallet_in_fork, axes, MAST, FORKS, PALLET, LIMITS, clearance)
+
+
+@pytest.mark.parametrize("tilt_deg", [0.0, 3.0, -4.0])
+def test_the_forks_end_level_with_the_pockets_and_only_the_lift_moves(tilt_deg):
+    axes = {"lift": 0.6, "reach": 0.15, "tilt": math.radians(tilt_deg)}
+    rough = Transform.from_euler(0.174, -0.003, -0.292, 0.0, math.radians(1.7), math.radians(0.2))
+    target = view(rough, axes)
+    assert target["reach"] == axes["reach"] and target["tilt"] == axes["tilt"]
+    pallet_in_truck = fork_in_truck_from_axes(axes, MAST) @ rough
+    after = fork_in_truck_from_axes(target, MAST).inverse() @ pallet_in_truck
+    assert after.translation[2] == pytest.approx(0.0, abs=1e-9)  # pocket centre on the fork's mid-plane
+    assert after.translation[0] == pytest.approx(rough.translation[0], abs=0.03)  # as far ahead as before
+
+
+def test_tips_too_close_to_the_pallet_are_refused_with_the_gap():
+    axes = {"lift": 0.6, "reach": 0.15, "tilt": 0.0}
+    close = Transform.from_euler(0.06, 0.0, -0.3, 0.0, 0.0, 0.0)
+    with pytest.raises(AgfError, match=r"tips are 60 mm from its front face.*at least 100 mm"):
+        view(close, axes)
+    turned = Transform.from_euler(0.15, 0.0, -0.3, 0.0, 0.0, math.radians(10))  # a corner 95 mm nearer
+    with pytest.raises(AgfError, match="no room"):
+        view(turned, axes)
+
+
+def test_a_viewing_pose_beyond_the_lift_limits_is_refused():
+    axes = {"lift": 0.2, "reach": 0.15, "tilt": 0.0}
+    with pytest.raises(AgfError, match=r"lift that would show it \(-100 mm\) is outside"):
+        view(Transform.from_euler(0.3, 0.0, -0.3, 0.0, 0.0, 0.0), axes)
