@@ -17,20 +17,16 @@ from agf.pallets import PalletType
 Array = NDArray[np.float64]
 
 
-def pallet_parts(pallet: PalletType) -> list[tuple[Array, Array]]:
-    """The pallet's solid parts as (low, high) corners (m) in frame P."""
+def pallet_parts(pallet: PalletType) -> Array:
+    """The pallet's solid parts as boxes (K, 2, 3): each part's low and high corner (m) in frame P."""
     half = pallet.pocket_height / 2
-    parts = [(np.array([0.0, -pallet.width / 2, half]), np.array([pallet.length, pallet.width / 2, pallet.deck_top]))]
+    parts = [([0.0, -pallet.width / 2, half], [pallet.length, pallet.width / 2, pallet.deck_top])]
     if pallet.bottom > 0:
-        parts.append(
-            (np.array([0.0, -pallet.width / 2, pallet.deck_bottom]), np.array([pallet.length, pallet.width / 2, -half]))
-        )
+        parts.append(([0.0, -pallet.width / 2, pallet.deck_bottom], [pallet.length, pallet.width / 2, -half]))
     for block in pallet.blocks:
         depth = block.depth if block.depth is not None else pallet.length
-        parts.append(
-            (np.array([0.0, block.y - block.width / 2, -half]), np.array([depth, block.y + block.width / 2, half]))
-        )
-    return parts
+        parts.append(([0.0, block.y - block.width / 2, -half], [depth, block.y + block.width / 2, half]))
+    return np.array(parts, dtype=float)
 
 
 def tine_surface_points(forks: ForkGeometry, spacing: float = 0.01) -> Array:
@@ -48,15 +44,12 @@ def tine_surface_points(forks: ForkGeometry, spacing: float = 0.01) -> Array:
     return np.concatenate(points)
 
 
-def clearance(points_f: Array, fork_in_pallet: Transform, parts: list[tuple[Array, Array]]) -> float:
-    """Signed clearance (m) between tine points and pallet parts: negative means the tines cut a part."""
-    points = fork_in_pallet.apply(points_f)
-    best = np.inf
-    for low, high in parts:
-        outside = np.maximum(np.maximum(low - points, points - high), 0.0)
-        distance = np.linalg.norm(outside, axis=1)
-        inside = np.all((points > low) & (points < high), axis=1)
-        depth = np.min(np.minimum(points - low, high - points), axis=1)
-        signed = np.where(inside, -depth, distance)
-        best = min(best, float(signed.min()))
-    return best
+def clearance(points_f: Array, fork_in_pallet: Transform, parts: Array) -> float:
+    """Signed clearance (m) between tine points (N, 3, fork frame) and pallet parts (K, 2, 3, frame P,
+    :func:`pallet_parts`): negative means the tines cut a part, by the deepest point's depth."""
+    points = fork_in_pallet.apply(points_f).T[:, None, :]  # (3, 1, N): the long axis innermost, for speed
+    below, above = parts[:, 0].T[:, :, None] - points, points - parts[:, 1].T[:, :, None]  # (3, K, N)
+    outside = np.maximum(np.maximum(below, above), 0.0)
+    depth = -np.maximum(below, above).max(axis=0)  # > 0 inside the part: the distance to its nearest side
+    signed = np.where(depth > 0, -depth, np.sqrt((outside * outside).sum(axis=0)))
+    return float(signed.min())
