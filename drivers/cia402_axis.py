@@ -50,6 +50,17 @@ from drivers.can_bus import open_bus
 
 logger = logging.getLogger(__name__)
 
+
+class _ModeSetOnceBySdo(logging.Filter):
+    """canopen warns, per node and pick, that the operation mode (0x6060/0x6061) is not in a PDO. This
+    master sets the mode once at start-up by SDO and never mid-motion, so the PDOs stay small on purpose."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not record.getMessage().startswith("Operation Mode")
+
+
+logging.getLogger("canopen.profiles.p402").addFilter(_ModeSetOnceBySdo())
+
 DEFAULT_EDS = Path(__file__).resolve().parents[1] / "configs" / "eds" / "agf_axis.eds"
 
 #: EMCY error codes (CiA 301 / CiA 402) the drives of this project report, by name.
