@@ -24,6 +24,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from agf.errors import InputError
+from agf.vision.accuracy import BOUNDS, within_bounds
 
 CAMPAIGN_FILE, RESULTS_FILE, REPORT_FILE = "campaign.json", "results.jsonl", "report.md"
 OUTCOMES = ("inserted", "refused", "faulted", "collided")
@@ -114,6 +115,7 @@ def campaign_figures(results: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
         "faulted": counts["faulted"],
         "collisions": sum(r["collision"] for r in results),
         "viewing_moves": sum(r.get("viewing_moves", 0) for r in results),
+        "measurements_outside_bounds": sum(not within_bounds(e["error"]) for e in measurement_errors(results)),
         "min_clearance_mm": min(clearances) if clearances else None,
         "median_cycle_s": statistics.median(cycles) if cycles else None,
         "failures": failures,
@@ -295,6 +297,11 @@ def _markdown(folder: Path, meta: Mapping[str, Any], results: list[dict[str, Any
             stats.append((key, f"{np.median(values):.2f}", f"{_percentile(values, 95):.2f}", f"{max(values):.2f}"))
         lines += [f"{len(errors)} measurements against the rendered truth (absolute error, mm and deg).", ""]
         lines += _table(["pallet_in_fork", "median", "95th percentile", "max"], stats)
+        wrong = [e for e in errors if not within_bounds(e["error"])]
+        bounds = ", ".join(f"|{key}| <= {bound:g}" for key, bound in BOUNDS.items())
+        runs = ", ".join(str(run) for run in sorted({e["run"] for e in wrong}))
+        lines += [f"Accepted measurements outside the accuracy bounds ({bounds}): **{len(wrong)}**"
+                  + (f", in runs {runs}." if wrong else "."), ""]
     lines += [f"![measurement error]({plots['error']})", "", "## Clearance", "", f"![clearance]({plots['clearance']})"]
     lines += ["", "## Cycle times", "", f"![cycle times]({plots['cycle']})", ""]
     return "\n".join(lines)

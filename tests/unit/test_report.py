@@ -121,3 +121,19 @@ def test_an_unfinished_last_line_is_left_out_and_a_repeated_run_is_an_error(tmp_
     (tmp_path / RESULTS_FILE).write_text(f"{good}\n{good}\n")
     with pytest.raises(InputError, match="run 1 appears twice"):
         read_results(tmp_path)
+
+
+def test_the_report_counts_accepted_measurements_outside_the_accuracy_bounds(folder):
+    result = write_report(folder)
+
+    def off(m, t):  # |x| <= 10 mm, |z| <= 5 mm, |pitch| <= 0.1 deg: docs/accuracy.md's bounds
+        dx, dz, dpitch = (abs(m[k] - t[k]) for k in ("x_mm", "z_mm", "pitch_deg"))
+        return dx > 10 or dz > 5 or dpitch > 0.1
+
+    outside = sorted({r["run"] for r in read_results(folder)
+                      for m, t in zip(r["measured"], r["truth"], strict=True) if off(m, t)})
+    assert outside, "the light pick's 0.1 deg pitch noise puts some measurements outside the bounds"
+    count = result["measurements_outside_bounds"]
+    assert count >= len(outside)
+    markdown = (folder / "report.md").read_text()
+    assert f"**{count}**, in runs {', '.join(map(str, outside))}." in markdown
