@@ -628,9 +628,7 @@ class Cia402Axis(Axis):
         self._step = "writing 0x1017 (producer heartbeat)"
         node.sdo[0x1017].raw = round(settings.heartbeat * 1000)
         self._step = "waiting for its heartbeat"
-        self._heartbeat_arrived.clear()
-        if not self._net.clock.wait(self._heartbeat_arrived, timeout):
-            raise NmtError(f"no heartbeat within {timeout} s")
+        self._await_heartbeat(timeout)
         self._write_optional(0x1016, 1, settings.master_node_id << 16 | round(3 * settings.heartbeat * 1000))
         self._write_optional(0x1006, 0, round(settings.cycle * 1e6))
         self._step = "mapping the PDOs"
@@ -652,9 +650,7 @@ class Cia402Axis(Axis):
         for _ in range(SDO_ATTEMPTS):
             node.nmt.state = "OPERATIONAL"
             for _ in range(2):  # the first heartbeat may have left before the command arrived
-                self._heartbeat_arrived.clear()
-                if not self._net.clock.wait(self._heartbeat_arrived, timeout):
-                    raise NmtError(f"no heartbeat within {timeout} s")
+                self._await_heartbeat(timeout)
             if node.nmt.state == "OPERATIONAL":
                 return
             logger.warning("axis %s: drive still %s after NMT start; sending it again", self.name, node.nmt.state)
@@ -849,6 +845,12 @@ class Cia402Axis(Axis):
         if not self._await_tpdo(timeout):
             raise DriveFault(f"axis {self.name}: no statusword from node {self.node.id} within {timeout} s")
         return self.node.statusword
+
+    def _await_heartbeat(self, timeout: float) -> None:
+        """Wait (on the network's clock) for the drive's next heartbeat; NmtError if none within ``timeout`` s."""
+        self._heartbeat_arrived.clear()
+        if not self._net.clock.wait(self._heartbeat_arrived, timeout):
+            raise NmtError(f"no heartbeat within {timeout} s")
 
     def _await_tpdo(self, timeout: float) -> bool:
         """Wait (on the network's clock) for the next TPDO1; whether one came within ``timeout`` s."""

@@ -376,4 +376,3 @@ def simulate_command(
         progress=progress,
     )
     return {**({"plots": plots} if plots else {}), **summary}
-
