@@ -1,5 +1,6 @@
-"""A real simulated pick as a Ray task on a local Ray, against the same pick on the process pool: the
-same scene, the same outcome, the same measurement within what wall-clock timing can move."""
+"""Real simulated picks as Ray tasks on a local Ray, against the same picks on the process pool. On the
+simulated clock a pick is a function of (seed, run index): the records must be identical but for the
+timing fields (wall seconds, the cycle's measured vision compute time) and the recorder file's name."""
 
 from __future__ import annotations
 
@@ -13,29 +14,22 @@ from drivers.sim.world import simulate_command
 pytest.importorskip("ray", reason="Ray is an optional extra: pip install -e '.[cluster]'")
 
 CONFIG = load_config(DEFAULT_CONFIG)
+TIMING = ("wall_s", "cycle_s", "log")
 
 
-def pick_on(backend: str, folder) -> dict:
-    """Pick 0 of seed 4242 on ``backend``; run again (at most three times) when it faulted: on the wall
-    clock, drive heartbeats starved by other processes fault a pick, which is not what this compares."""
-    for attempt in range(3):
-        out = folder / f"{backend}-{attempt}"
-        summary = simulate_command(
-            CONFIG, scene=None, runs=30, seed=4242, indices=[0], jobs=1, backend=backend, out=str(out), progress=False
-        )
-        assert summary["runs"] == 1 and summary["collisions"] == 0
-        (record,) = read_results(out)
-        if record["outcome"] != "faulted":
-            break
-    return record
+def picks_on(backend: str, folder) -> dict[int, dict]:
+    """Picks 0 (refused) and 4 (inserted) of seed 4242 on ``backend``, by run index, without their timing fields."""
+    out = folder / backend
+    summary = simulate_command(
+        CONFIG, scene=None, runs=30, seed=4242, indices=[0, 4], jobs=2, backend=backend, out=str(out), progress=False
+    )
+    assert summary["runs"] == 2 and summary["collisions"] == 0
+    return {r["run"]: {k: v for k, v in r.items() if k not in TIMING} for r in read_results(out)}
 
 
 @pytest.mark.slow
-def test_a_real_pick_on_ray_gives_the_pools_result(tmp_path):
-    pool, ray = pick_on("pool", tmp_path), pick_on("ray", tmp_path)
-    # The backends are compared, not the vision: a random look may be refused, on both alike. The frames
-    # are rendered where the forks are on the wall clock, so a refusal's wording may differ between runs.
-    assert ray["scene"] == pool["scene"] and ray["outcome"] == pool["outcome"] in ("inserted", "refused")
-    assert len(ray["measured"]) == len(pool["measured"])
-    for a, b in zip(ray["measured"], pool["measured"], strict=True):
-        assert abs(a["z_mm"] - b["z_mm"]) < 1.0 and abs(a["pitch_deg"] - b["pitch_deg"]) < 0.05
+def test_real_picks_on_ray_give_the_pools_records(tmp_path):
+    pool, ray = picks_on("pool", tmp_path), picks_on("ray", tmp_path)
+    assert sorted(pool) == [0, 4]
+    assert ray == pool
+    assert any(record["measured"] for record in pool.values())  # a pick measured something to compare
