@@ -306,6 +306,9 @@ def _choose(evidence: dict[str, PitchEvidence]) -> PitchEvidence:
         return evidence["unloaded"]
     if evidence["loaded"].valid:
         return evidence["loaded"]
+    noted = [e.note for e in evidence.values() if e.note]
+    if noted:
+        raise MeasurementError(f"no trustworthy pitch: {'; '.join(noted)}; refusing rather than guessing")
     ambiguous = [name for name, e in evidence.items() if e.ambiguous]
     if ambiguous:
         raise MeasurementError(

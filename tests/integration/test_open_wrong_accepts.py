@@ -1,9 +1,9 @@
 """Wrong accepts found on the project's randomised renders (agf bench accuracy.randomised).
 
-Those in ``open-wrong-accepts/`` are not fixed yet: each is a strict xfail, failing today because the
-measurement is accepted outside the bounds; the marker must go (strict: an unexpected pass fails the
-suite) once the vision refuses it or measures it right, and the scene moves to ``fixed-wrong-accepts/``,
-where it is a regression test. The scene files say where each came from.
+Each scene in ``fixed-wrong-accepts/`` was once accepted outside the bounds and is now refused or measured
+within them; the scene files say where each came from and what fixed it. A wrong accept found and not yet
+fixed goes in ``open-wrong-accepts/``, where it is a strict xfail (an unexpected pass fails the suite, so the
+scene moves to ``fixed-wrong-accepts/`` the day it is fixed).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from agf.vision.measure import measure_pallet
 from tests.integration.conftest import SCENES
 
 CONFIG = load_config(DEFAULT_CONFIG)
-OPEN = pytest.mark.xfail(strict=True, reason="load-edge pitch 0.2-0.5 deg off under random looks: open, see issue 17")
+OPEN = pytest.mark.xfail(strict=True, reason="accepted outside the bounds under random looks: open, see issue 17")
 SCENE_FILES = [
     pytest.param(path, id=f"{folder}/{path.stem}", marks=[OPEN] if folder.startswith("open") else [])
     for folder in ("open-wrong-accepts", "fixed-wrong-accepts")
@@ -31,8 +31,9 @@ SCENE_FILES = [
 
 @pytest.mark.parametrize("path", SCENE_FILES)
 def test_randomised_scene_is_refused_or_within_bounds(path):
-    """fixed-wrong-accepts/loaded-middle-rear-up-look-0: a second pair of load edges 0.57 deg off answered
-    the search from 0.5 deg beside the pitch; now refused, as the pitch does not settle (MeasureConfig.pitch_probe)."""
+    """loaded-middle-rear-up-look-0: a second pair of load edges 0.57 deg off answered the search from 0.5 deg
+    beside the pitch (now refused: the pitch does not settle); loaded-*-front-up: the load edges' pitch 0.2-0.6 deg
+    off (now checked against the lines on the load's face)."""
     from drivers.sim.fast_render import render_fast
 
     scene = load_scene(path)

@@ -10,7 +10,7 @@ from agf.geometry import Transform
 from agf.pallets import load_pallets
 from agf.paths import DEFAULT_CONFIG
 from agf.vision.hough import SphereLine
-from agf.vision.pitch import PitchEvidence, pose_from_deck_edges
+from agf.vision.pitch import PitchEvidence, direction_of_parallel_lines, pose_from_deck_edges
 
 PALLET = load_pallets(load_config(DEFAULT_CONFIG).vision.pallets)["jis-t11"]
 CAMERA_IN_FORK = Transform.from_euler(-0.705, 0.0, 1.055)
@@ -49,3 +49,56 @@ def test_deck_edges_need_a_valid_unloaded_hypothesis():
         pose_from_deck_edges(deck_edge_evidence(truth, "loaded"), PALLET, CAMERA_IN_FORK, truth)
     with pytest.raises(ValueError, match="valid unloaded"):
         pose_from_deck_edges(deck_edge_evidence(truth, valid=False), PALLET, CAMERA_IN_FORK, truth)
+
+
+def pitched_axes(pitches: np.ndarray) -> np.ndarray:
+    """Pallet Z pitched by each of ``pitches`` (rad): the candidates a scan of pitch tries, (K, 3)."""
+    return np.array([Transform.from_euler(pitch=p).rotation[:, 2] for p in pitches])
+
+
+def face_line_points(pitch: float, ys: np.ndarray, rng: np.random.Generator, noise: float) -> np.ndarray:
+    """Unit directions of points on vertical lines of a face 1.5 m ahead, pitched by ``pitch`` (rad), at
+    lateral offsets ``ys`` (m), 0.5 m long, 80 points each, with ``noise`` (rad) across each line."""
+    axis = pitched_axes(np.array([pitch]))[0]
+    points = []
+    for y in ys:
+        foot = np.array([1.5, y, -0.3])
+        along = foot + np.linspace(0.0, 0.5, 80)[:, None] * axis
+        points.append(along / np.linalg.norm(along, axis=1, keepdims=True))
+    points = np.concatenate(points)
+    side = np.cross(points, axis)
+    side /= np.linalg.norm(side, axis=1, keepdims=True)
+    points = points + rng.normal(0.0, noise, (len(points), 1)) * side
+    return points / np.linalg.norm(points, axis=1, keepdims=True)
+
+
+PIXEL = np.radians(0.08)
+SCAN = np.radians(np.arange(-1.5, 1.501, 0.02))
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_parallel_lines_give_their_pitch_beside_lines_of_another(seed):
+    """Lines of a load's face (carton joints, tape) pitched like the pallet, and two rack uprights at
+    pitch 0 among them: the uprights disagree with the rest and are dropped."""
+    rng = np.random.default_rng(seed)
+    pitch = np.radians(rng.uniform(-1.0, 1.0))
+    face = face_line_points(pitch, np.linspace(-0.35, 0.35, 8) + rng.uniform(-0.02, 0.02, 8), rng, 0.1 * PIXEL)
+    uprights = face_line_points(0.0, np.array([-0.45, 0.42]), rng, 0.1 * PIXEL)
+    found = direction_of_parallel_lines(np.concatenate([face, uprights]), pitched_axes(SCAN), PIXEL)
+    assert found is not None
+    direction, sigma, lines = found
+    measured = np.arctan2(direction[0], direction[2])
+    assert abs(np.degrees(measured - pitch)) < 0.02 and lines >= 8
+    assert abs(measured - pitch) < 3.0 * sigma < np.radians(0.1)  # an honest uncertainty, well inside the bound
+
+
+def test_parallel_lines_are_no_direction_when_two_lines_remain():
+    rng = np.random.default_rng(7)
+    points = face_line_points(np.radians(0.4), np.array([-0.3, 0.3]), rng, 0.1 * PIXEL)
+    assert direction_of_parallel_lines(points, pitched_axes(SCAN), PIXEL) is None
+
+
+def test_parallel_lines_are_no_direction_beyond_the_scan():
+    rng = np.random.default_rng(8)
+    points = face_line_points(np.radians(2.5), np.linspace(-0.3, 0.3, 6), rng, 0.1 * PIXEL)
+    assert direction_of_parallel_lines(points, pitched_axes(SCAN), PIXEL) is None
