@@ -57,6 +57,36 @@ def test_pose_a_deck_board_off_is_refused(rendered, dz):
         check_face_edges(image, camera, scene.camera_in_fork, _moved(scene.pallet.in_fork, 0.0, dz), face, CONFIG.forks)
 
 
+def _along_sight(T: Transform, camera_in_fork: Transform, face, distance: float) -> Transform:
+    centre = T.apply(np.array([0.0, 0.0, (face.z_bottom + face.z_top) / 2]))
+    sight = centre - camera_in_fork.translation
+    return Transform(T.rotation, T.translation + distance * sight / np.linalg.norm(sight))
+
+
+@pytest.mark.parametrize("distance", [0.025, -0.025])
+def test_pose_off_along_the_line_of_sight_is_refused(rendered, distance):
+    scene, image, camera, face = _scene("paper/unloaded-middle-flat", rendered)
+    moved = _along_sight(scene.pallet.in_fork, scene.camera_in_fork, face, distance)
+    with pytest.raises(MeasurementError, match="does not confirm the measured pose"):
+        check_face_edges(image, camera, scene.camera_in_fork, moved, face, CONFIG.forks)
+
+
+@pytest.mark.skipif(not FOREIGN.is_dir(), reason="../shared/data/foreign-renders is not beside this checkout")
+def test_regression_foreign_unloaded_flat_face_too_far_along_the_line_of_sight_is_refused():
+    """Searched from the pyramid's level 2, the face was fitted 24 mm too far along the line of sight (x +18,
+    z -16 mm), the deck edges' pose with that x was refused, and the face's own pose was confirmed by its
+    edges at 50-60 % and accepted (foreign render unloaded-flat): the face 20 mm nearer agreed at 93 %."""
+    scene = yaml.safe_load((FOREIGN / "scenes/unloaded-flat.yaml").read_text())
+    truth = transform_from_dict(json.loads((FOREIGN / "images/unloaded-flat.truth.json").read_text())["pallet_in_fork"])
+    image = cv2.imread(str(FOREIGN / "images/unloaded-flat.png"), cv2.IMREAD_GRAYSCALE)
+    camera = load_camera(FOREIGN / scene["camera"])
+    camera_in_fork = transform_from_dict(scene["camera_in_fork"], where="camera_in_fork")
+    face = face_model_from_pallet(CATALOGUE[scene["pallet"]["type"]])
+    check_face_edges(image, camera, camera_in_fork, truth, face, CONFIG.forks)
+    with pytest.raises(MeasurementError, match="nearer to the camera explains its edges better"):
+        check_face_edges(image, camera, camera_in_fork, _along_sight(truth, camera_in_fork, face, 0.024), face, CONFIG.forks)
+
+
 def test_pose_on_a_blank_image_is_refused(rendered):
     scene, image, camera, face = _scene("paper/unloaded-middle-flat", rendered)
     blank = np.full_like(image, 128)
