@@ -83,8 +83,9 @@ def test_regression_foreign_unloaded_flat_face_too_far_along_the_line_of_sight_i
     camera_in_fork = transform_from_dict(scene["camera_in_fork"], where="camera_in_fork")
     face = face_model_from_pallet(CATALOGUE[scene["pallet"]["type"]])
     check_face_edges(image, camera, camera_in_fork, truth, face, CONFIG.forks)
+    too_far = _along_sight(truth, camera_in_fork, face, 0.024)
     with pytest.raises(MeasurementError, match="nearer to the camera explains its edges better"):
-        check_face_edges(image, camera, camera_in_fork, _along_sight(truth, camera_in_fork, face, 0.024), face, CONFIG.forks)
+        check_face_edges(image, camera, camera_in_fork, too_far, face, CONFIG.forks)
 
 
 def test_pose_on_a_blank_image_is_refused(rendered):
