@@ -186,8 +186,16 @@ def measure_pallet(
         first = pose = pose_at(prior, pitch, search)
         step = swing = 0.0
         evidence = None
+        led = False
         for _ in range(config.iterations):
             evidence = pitch_at(pose, evidence)
+            lead = evidence["loaded"].lead
+            if not led and not evidence["unloaded"].valid and abs(lead - pitch) >= config.pitch_tolerance:
+                # The load's edges, searched around the wrong pitch, disagree with its face's lines: search
+                # the pose and the edges again at the face's pitch; the edges must then agree by themselves.
+                pitch, led, step = lead, True, 0.0
+                pose = pose_again(pose, pitch, first)
+                continue
             chosen = _choose(evidence)
             change = chosen.pitch - pitch
             pitch, swung = next_pitch(pitch, chosen.pitch, step)

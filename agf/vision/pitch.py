@@ -101,6 +101,10 @@ class PitchEvidence:
         Loaded only: directions (camera frame) of the edge points between the load's edges.
     note : str
         Why a hypothesis whose edges were found is not valid, when it is not the ratio or a rival.
+    lead : float
+        Loaded, when the edges disagree with the lines on the load's face: the face's pitch (rad), at which
+        the pose may be searched again, as the edges are searched around the pitch they are predicted at;
+        never a measurement (NaN otherwise).
     """
 
     hypothesis: str
@@ -117,6 +121,7 @@ class PitchEvidence:
     candidates: tuple[float, ...] = ()
     face_points: Array | None = None
     note: str = ""
+    lead: float = math.nan
 
 
 def unloaded_evidence(
@@ -219,8 +224,9 @@ def loaded_evidence(
         note = (f"the {face.lines} lines on the load's face give its pitch only to +-{math.degrees(face.sigma):.2f} "
                 f"deg (at most {math.degrees(config.face_max_sigma):.3f})")
     if note:
+        lead = face.pitch if miss > config.face_agreement and face.sigma <= config.face_max_sigma else math.nan
         return dataclasses.replace(pair, valid=False, pitch=math.nan, direction=np.full(3, np.nan), ambiguous=False,
-                                   note=note)
+                                   note=note, lead=lead)
     return dataclasses.replace(pair, valid=True, pitch=face.pitch, direction=face.direction, ambiguous=False,
                                sigma=math.hypot(face.sigma, miss / 2))
 
