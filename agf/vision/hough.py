@@ -82,12 +82,21 @@ def hough_line(
     inside = (bins >= 0) & (bins < edges.size - 1)
     cells = (np.arange(len(taus))[:, None] * (edges.size - 1) + bins)[inside]
     votes = np.broadcast_to(weights[None, :], phis.shape)[inside]
-    accumulator = np.bincount(cells, weights=votes, minlength=len(taus) * (edges.size - 1)).reshape(len(taus), -1)
-    accumulator = accumulator + np.roll(accumulator, 1, axis=1) + np.roll(accumulator, -1, axis=1)
-    t_index, p_index = np.unravel_index(np.argmax(accumulator), accumulator.shape)
-    normal = circle_normal(panorama, 0.5 * (edges[p_index] + edges[p_index + 1]), taus[t_index])
-    return refine_line(directions, weights, normal, tolerance)
-
+    raw = np.bincount(cells, weights=votes, minlength=len(taus) * (edges.size - 1)).reshape(len(taus), -1)
+    summed = raw.copy()  # each bin with its two neighbours: a line's votes straddle bin borders
+    summed[:, 1:] += raw[:, :-1]
+    summed[:, :-1] += raw[:, 1:]
+    t_index, p_index = np.unravel_index(np.argmax(summed), summed.shape)
+    # The circle starts from the middle of the three bins and from the strongest of them, and the better
+    # fit is kept: between two lines three bins apart the middle bin may be empty and no point lies near
+    # its circle (random look 0 of paper scene loaded-middle-flat lost a load edge), while a line straddling
+    # two bins is best fitted from the middle (the real lens's unloaded frame lost a deck edge otherwise).
+    window = np.arange(max(p_index - 1, 0), min(p_index + 2, raw.shape[1]))
+    starts = {int(p_index), int(window[np.argmax(raw[t_index, window])])}
+    fits = [refine_line(directions, weights, circle_normal(panorama, 0.5 * (edges[p] + edges[p + 1]), taus[t_index]),
+                        tolerance) for p in sorted(starts)]
+    fits = [fit for fit in fits if fit is not None]
+    return max(fits, key=lambda fit: fit.score) if fits else None
 
 def refine_line(directions: Array, weights: Array, normal: Array, tolerance: float) -> SphereLine | None:
     """The great circle near ``normal`` fitted to the edge ``directions`` (N, 3) within ``tolerance`` (rad)
