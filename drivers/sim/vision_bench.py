@@ -138,8 +138,10 @@ def measure_accuracy(quick: bool) -> dict[str, Any]:
     return _measured([(key, load_scene(SCENES / f"{key}.yaml")) for key in keys], rendered).summary()
 
 
-# Random looks per paper scene: 18 x 2 = 36 scenes, the issue's "at least 30 with the paper's geometry".
-RANDOM_LOOKS = 2
+# Random looks per paper scene: 18 x 4 = 72 scenes (the issue asks at least 30 with the paper's geometry). Two
+# looks each (36 scenes) showed no wrong accept while looks 2-7 of the loaded scenes showed five: a sample of
+# 36 is too small for a rate that should be zero.
+RANDOM_LOOKS = 4
 
 
 @bench_case("randomised", "accuracy")

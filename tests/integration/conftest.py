@@ -31,6 +31,12 @@ def render_all(scene_paths: list[Path], out_dir: Path) -> dict[str, Path]:
     return {f"{p.parent.name}/{p.stem}": out_dir / f"{p.parent.name}-{p.stem}.png" for p in scene_paths}
 
 
+def as_bench_reads(frame):
+    """``frame`` as ``agf bench`` measures it: written as PNG and read back in grey, whose conversion from
+    colour differs from the measurement's own by a grey level here and there (enough to change a verdict)."""
+    return cv2.imdecode(cv2.imencode(".png", frame)[1], cv2.IMREAD_GRAYSCALE)
+
+
 def scene_files() -> list[Path]:
     files = sorted((SCENES / "paper").glob("*.yaml")) + sorted((SCENES / "robust").glob("*.yaml"))
     if not SHARED_DATA.is_dir():  # the real-lens scene needs ../shared/data
