@@ -33,7 +33,8 @@ SCENE_FILES = [
 def test_randomised_scene_is_refused_or_within_bounds(path):
     """loaded-middle-rear-up-look-0: a second pair of load edges 0.57 deg off answered the search from 0.5 deg
     beside the pitch (now refused: the pitch does not settle); loaded-*-front-up: the load edges' pitch 0.2-0.6 deg
-    off (now checked against the lines on the load's face)."""
+    off (now checked against the lines on the load's face); unloaded-high-front-up-look-2: shadows of two uprights
+    across the deck taken for its edges, 4.2 deg off (now refused: they meet 2 deg across the pallet's axis)."""
     from drivers.sim.fast_render import render_fast
 
     scene = load_scene(path)
