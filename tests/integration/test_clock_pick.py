@@ -157,8 +157,10 @@ def test_forks_hiding_the_pallet_move_to_a_viewing_pose_and_the_pick_inserts():
     assert len(result.views) == 1 and "the forks hide" in result.views[0]
     assert summary["viewing_moves"] == 1 and not summary["collision"]
     viewing = [row for row in result.log if row["state"] == "viewing"]
-    # lift only, level with the pockets: the pallet stood 292 mm below the forks
-    assert viewing[-1]["actual"]["lift"] - start["lift"] == pytest.approx(-0.292, abs=0.02)
+    # Lift only, level with the pockets: the pallet stood 292 mm below the forks. The rough pose of a
+    # pallet the forks hide errs along the camera's steep line of sight (27 mm at 1.6 m: 16 mm in reach,
+    # 22 mm in height since 931c02c): the move must land within a third of the JIS T11's 90 mm pocket.
+    assert viewing[-1]["actual"]["lift"] - start["lift"] == pytest.approx(-0.292, abs=0.03)
     assert all(abs(row["actual"]["reach"] - start["reach"]) < 1e-4 for row in viewing)
 
 
