@@ -930,8 +930,14 @@ class Cia402Axis(Axis):
             self._last_tpdo += stalled
         heartbeat = self._net.settings.heartbeat
         if self._last_heartbeat is not None and now - self._last_heartbeat > 2.5 * heartbeat:
+            silence = now - self._last_heartbeat
+            if self._last_tpdo is not None and self._last_tpdo - self._last_heartbeat > 1.5 * heartbeat:
+                # TPDOs sent after the next heartbeat was due: the drive talks, its heartbeats were lost
+                self._raise_fault(f"CAN frames lost: no heartbeat for {silence:.3f} s while the drive's TPDOs "
+                                  "still arrive")
+                return
             self._silent = True
-            self._raise_fault(f"heartbeat lost (silent for {now - self._last_heartbeat:.3f} s)")
+            self._raise_fault(f"heartbeat lost (silent for {silence:.3f} s)")
             return
         tpdo_timeout = max(10 * self._net.settings.cycle, 2.5 * heartbeat)
         if self._net._stream is not None and self._last_tpdo is not None and now - self._last_tpdo > tpdo_timeout:

@@ -129,6 +129,11 @@ def truncate(cob_id: int, length: int) -> Mangle:
     return cut
 
 
+def drop(cob_id: int) -> Mangle:
+    """A :meth:`LossyBus.mangle` function: frames with ``cob_id`` never arrive, all others do."""
+    return lambda msg: None if msg.arbitration_id == cob_id else msg
+
+
 def flood(cob_ids: Iterable[int], count: int, seed: int = 0) -> list[can.Message]:
     """``count`` frames of random data (0..8 bytes) from COB-IDs no node of the bus uses."""
     rng = random.Random(seed)

@@ -37,7 +37,7 @@ from agf.geometry import Transform
 from agf.paths import DEFAULT_CONFIG, repo_path
 from agf.scene import load_scene
 from drivers.camera_source import Folder
-from drivers.lossy_bus import LossyBus, truncate
+from drivers.lossy_bus import LossyBus, drop, truncate
 from drivers.sim.render import render
 from drivers.sim.world import START, SimulatedWorld
 
@@ -199,6 +199,8 @@ def _node(pick: FaultPick, axis: str) -> int:
 SCENARIOS: dict[str, tuple[Callable[[FaultPick], None], str, str]] = {
     "can_loss_10pct": (lambda pick: pick.bus.set_loss(0.10), "aligning", "CAN frames lost"),
     "can_burst_200ms": (lambda pick: pick.bus.burst(0.2), "aligning", "feedback lost"),
+    "heartbeats_lost": (lambda pick: pick.bus.mangle(drop(0x700 + _node(pick, "reach"))), "aligning",
+                        "CAN frames lost: no heartbeat"),
     "tpdo_wrong_length": (lambda pick: pick.bus.mangle(truncate(0x180 + _node(pick, "reach"), 3)), "aligning",
                           "rejected for their length"),
     "can_bus_gone": (lambda pick: pick.bus.unplug(), "aligning", "CAN bus gone"),

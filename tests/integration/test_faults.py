@@ -58,7 +58,7 @@ def assert_fault_at_rest(reaction: Reaction, words: str) -> None:
 
 @pytest.mark.parametrize("name", list(SCENARIOS))
 def test_fault_mid_motion(pick_folder: Path, name: str) -> None:
-    """can_loss_10pct, can_burst_200ms, tpdo_wrong_length, can_bus_gone, drive_reboot, emcy_warning,
+    """can_loss_10pct, can_burst_200ms, heartbeats_lost, tpdo_wrong_length, can_bus_gone, drive_reboot, emcy_warning,
     emcy_fault (while aligning), following_error, limit_switch (while inserting)."""
     reaction = run_scenario(pick_folder, name)
     assert_fault_at_rest(reaction, SCENARIOS[name][2])
