@@ -70,6 +70,14 @@ class PoseSearchConfig:
     max_occluded: float = 0.25
     edge_spacing: float = 0.006
     radii_px: tuple[float, ...] = (4.0, 3.0, 2.0, 2.0, 2.0)
+    # The face's two ends join the converged pocket-edge fit for ``end_steps`` more steps (at the last
+    # radius) and are kept when they move it at most ``ends_agreement`` (m): they fix the scale, hence
+    # the depth, which the pocket edges alone left 2.7 mm too far where a lit pocket entrance shows
+    # beyond a pocket edge; joined from the start they pulled a steeply seen face to 0.83 of its scale,
+    # and a loaded pallet beside two neighbours moved 26 mm with them (random pick 29 of
+    # `agf simulate --random 100 --seed 7`).
+    end_steps: int = 2
+    ends_agreement: float = 0.01
 
     def __post_init__(self) -> None:
         if self.similarity not in ("correlation", "regions"):
@@ -216,7 +224,7 @@ def _fine(gray, camera, camera_in_fork, face: FaceModel, starts: list[_Params], 
     """The fits from ``starts`` (score, params, residual, edges used, occluded, worst group, sigma), most
     similar first; :class:`MeasurementError` when none fits."""
     smooth = _smooth_near(gray, camera, camera_in_fork, face, starts)
-    points, normals, groups = face.edge_points(config.edge_spacing)
+    points, normals, groups = face.fit_points(config.edge_spacing)
     fits = _refine(smooth, camera, camera_in_fork, starts, points, normals, groups, forks, config)
     fits = [fit for fit in fits if fit is not None]
     if not fits:
@@ -691,7 +699,11 @@ def _refine(smooth, camera, camera_in_fork, starts: list[_Params], points, norma
     fork_in_camera = camera_in_fork.inverse()
     steps = np.array([1e-3, 1e-3, 1e-3, math.radians(0.05)])
     fits: list[_Fit | None] = [_Fit(params) for params in starts]
-    for radius in config.radii_px:
+    pockets_only: list[_Fit | None] = []
+    schedule = [(r, False) for r in config.radii_px] + [(config.radii_px[-1], True)] * config.end_steps
+    for radius, ends in schedule:
+        if ends and not pockets_only:
+            pockets_only = list(fits)
         live = [k for k, fit in enumerate(fits) if fit is not None]
         if not live:
             break
@@ -703,19 +715,31 @@ def _refine(smooth, camera, camera_in_fork, starts: list[_Params], points, norma
         for i, (k, (_, _, valid, J)) in enumerate(zip(live, linear, strict=True)):
             part = slice(i * len(points), (i + 1) * len(points))
             edges = EdgeSearch(found.offset[part], found.strength[part], found.valid[part])
-            fits[k] = _step(fits[k].params, edges, valid, J, radius, points, groups, camera_in_fork.translation, forks)
+            fits[k] = _step(fits[k].params, edges, valid, J, radius, points, groups, camera_in_fork.translation,
+                            forks, ends)
+    if pockets_only:
+        fits = [_with_ends(both, alone, config.ends_agreement) for both, alone in zip(fits, pockets_only, strict=True)]
     return [None if fit is None else fit.result() for fit in fits]
 
 
-def _step(params: _Params, edges: EdgeSearch, valid, J, radius, points, groups, eye, forks) -> _Fit | None:
-    """One robust, group-balanced Gauss-Newton step of :func:`_refine`; None when too few edges are found."""
+def _with_ends(with_ends: _Fit | None, alone: _Fit | None, agreement: float) -> _Fit | None:
+    """The fit with the face's ends where it stays within ``agreement`` (m) of the pocket edges' own."""
+    if with_ends is None or alone is None:
+        return alone
+    moved = np.linalg.norm(with_ends.params.transform().translation - alone.params.transform().translation)
+    return with_ends if moved <= agreement else alone
+
+
+def _step(params: _Params, edges: EdgeSearch, valid, J, radius, points, groups, eye, forks, ends: bool) -> _Fit | None:
+    """One robust, group-balanced Gauss-Newton step of :func:`_refine`, with the face's ends (group 5)
+    or without; None when too few edges are found."""
     hidden = hidden_by_forks(params.transform().apply(points), eye, forks)
-    usable = valid & edges.valid & ~hidden
+    usable = valid & edges.valid & ~hidden & (ends | (groups != 5))
     if usable.sum() < 12:
         return None
     weights = _tukey(edges.offset, usable, edges.strength, floor=radius / 4)
     inliers = weights > 0
-    seen = valid & ~hidden
+    seen = valid & ~hidden & (ends | (groups != 5))
     fractions = [float(np.mean(inliers[seen & (groups == g)])) for g in np.unique(groups[seen])]
     robust = weights.copy()
     for g in np.unique(groups):

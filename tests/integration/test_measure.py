@@ -205,3 +205,12 @@ def test_many_tight_lines_on_the_load_face_give_the_pitch_where_the_load_edges_d
                             CONFIG.vision.search, forks=CONFIG.forks)
     assert within_bounds(errors(scene, detail.measurement)), errors(scene, detail.measurement)
     assert detail.measurement.loaded
+
+
+@pytest.mark.parametrize("key", ["paper/unloaded-middle-flat", "paper/loaded-middle-flat", "paper/unloaded-high-flat"])
+def test_regression_lit_pocket_entrances_do_not_push_the_face_away(key, rendered):
+    """The pocket edges alone fitted these faces 2.7-2.9 mm too far: where the pocket's floor faces the
+    camera its lit entrance shows, and the strongest step lies 1.15 px into the pocket. The face's two
+    ends fix the scale; on the geometry-only shading the depth was right within 0.1 mm."""
+    scene, measurement = measure(key, rendered)
+    assert abs(errors(scene, measurement)["x_mm"]) <= 1.5, errors(scene, measurement)
