@@ -18,6 +18,8 @@ from agf.pallets import PalletType
 
 Array = NDArray[np.float64]
 
+ENDS = 5  # the group of the face's two ends in outline_points and fit_points
+
 
 @dataclass(frozen=True)
 class FaceModel:
@@ -115,8 +117,8 @@ class FaceModel:
         edges = [
             (np.c_[0 * along_y, along_y, 0 * along_y + self.z_top], (0.0, 0.0, 1.0), 3),
             (np.c_[0 * along_y, along_y, 0 * along_y + self.z_bottom], (0.0, 0.0, -1.0), 4),
-            (np.c_[0 * along_z, 0 * along_z + w, along_z], (0.0, 1.0, 0.0), 5),
-            (np.c_[0 * along_z, 0 * along_z - w, along_z], (0.0, -1.0, 0.0), 5),
+            (np.c_[0 * along_z, 0 * along_z + w, along_z], (0.0, 1.0, 0.0), ENDS),
+            (np.c_[0 * along_z, 0 * along_z - w, along_z], (0.0, -1.0, 0.0), ENDS),
         ]
         return (
             np.concatenate([e[0] for e in edges]),
@@ -135,7 +137,7 @@ class FaceModel:
         """
         points, normals, groups = self.edge_points(spacing, inset)
         outline, outward, parts = self.outline_points(spacing, inset)
-        ends = parts == 5
+        ends = parts == ENDS
         return (np.concatenate([points, outline[ends]]), np.concatenate([normals, outward[ends]]),
                 np.concatenate([groups, parts[ends]]))
 

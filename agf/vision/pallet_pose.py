@@ -38,7 +38,7 @@ from agf.config import ForkGeometry, SearchVolume
 from agf.errors import MeasurementError, PalletHiddenError
 from agf.geometry import Transform, matrix_from_euler
 from agf.vision.edges import EdgeSearch, search_edges
-from agf.vision.face_model import FaceModel
+from agf.vision.face_model import ENDS, FaceModel
 
 Array = NDArray[np.float64]
 
@@ -693,8 +693,9 @@ def _refine(smooth, camera, camera_in_fork, starts: list[_Params], points, norma
     search per step for all of them, as both cost mostly per call.
 
     Returns for each start (params, residual_px, edges_used, occluded, worst group inlier fraction, sigma)
-    or None. Each edge group (pocket tops, bottoms, sides) weighs the same in total, so the many
-    horizontal edge points cannot outvote the few vertical ones that fix the scale, hence the depth.
+    or None. Each edge group (pocket tops, bottoms, sides, and the face's ends once they join) weighs the
+    same in total, so the many horizontal edge points cannot outvote the few vertical ones that fix the
+    scale, hence the depth.
     """
     fork_in_camera = camera_in_fork.inverse()
     steps = np.array([1e-3, 1e-3, 1e-3, math.radians(0.05)])
@@ -726,20 +727,20 @@ def _with_ends(with_ends: _Fit | None, alone: _Fit | None, agreement: float) -> 
     """The fit with the face's ends where it stays within ``agreement`` (m) of the pocket edges' own."""
     if with_ends is None or alone is None:
         return alone
-    moved = np.linalg.norm(with_ends.params.transform().translation - alone.params.transform().translation)
-    return with_ends if moved <= agreement else alone
+    a, b = with_ends.params, alone.params
+    return with_ends if math.dist((a.x, a.y, a.z), (b.x, b.y, b.z)) <= agreement else alone
 
 
 def _step(params: _Params, edges: EdgeSearch, valid, J, radius, points, groups, eye, forks, ends: bool) -> _Fit | None:
     """One robust, group-balanced Gauss-Newton step of :func:`_refine`, with the face's ends (group 5)
     or without; None when too few edges are found."""
     hidden = hidden_by_forks(params.transform().apply(points), eye, forks)
-    usable = valid & edges.valid & ~hidden & (ends | (groups != 5))
+    seen = valid & ~hidden & (ends | (groups != ENDS))
+    usable = seen & edges.valid
     if usable.sum() < 12:
         return None
     weights = _tukey(edges.offset, usable, edges.strength, floor=radius / 4)
     inliers = weights > 0
-    seen = valid & ~hidden & (ends | (groups != 5))
     fractions = [float(np.mean(inliers[seen & (groups == g)])) for g in np.unique(groups[seen])]
     robust = weights.copy()
     for g in np.unique(groups):
