@@ -9,8 +9,8 @@ from agf.config import load_config
 from agf.geometry import Transform
 from agf.pallets import load_pallets
 from agf.paths import DEFAULT_CONFIG
-from agf.vision.hough import SphereLine
-from agf.vision.pitch import PitchEvidence, direction_of_parallel_lines, pose_from_deck_edges
+from agf.vision.hough import SphereLine, fit_plane_normal
+from agf.vision.pitch import PitchEvidence, direction_of_parallel_lines, pose_from_deck_edges, tilt_sigma
 
 PALLET = load_pallets(load_config(DEFAULT_CONFIG).vision.pallets)["jis-t11"]
 CAMERA_IN_FORK = Transform.from_euler(-0.705, 0.0, 1.055)
@@ -102,3 +102,49 @@ def test_parallel_lines_are_no_direction_beyond_the_scan():
     rng = np.random.default_rng(8)
     points = face_line_points(np.radians(2.5), np.linspace(-0.3, 0.3, 6), rng, 0.1 * PIXEL)
     assert direction_of_parallel_lines(points, pitched_axes(SCAN), PIXEL) is None
+
+
+def _points_on_circle(rng: np.random.Generator, offsets_px: np.ndarray, pixel: float) -> tuple[np.ndarray, np.ndarray]:
+    """Unit directions along 20 deg of the great circle with normal +z (the equator), each moved off it by
+    ``offsets_px`` panorama pixels of ``pixel`` rad; and that normal."""
+    lon = np.radians(np.linspace(-10.0, 10.0, len(offsets_px)))
+    lat = offsets_px * pixel
+    points = np.c_[np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)]
+    return points, np.array([0.0, 0.0, 1.0])
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_tilt_sigma_matches_the_scatter_of_tilts_fitted_to_independent_noise(seed):
+    """White noise: the runs' standard error is the slope's, as the tilts of many noisy copies scatter."""
+    rng = np.random.default_rng(seed)
+    pixel = np.radians(0.08)
+    tilts, sigmas = [], []
+    for _ in range(300):
+        points, normal = _points_on_circle(rng, rng.normal(0.0, 0.5, 240), pixel)
+        fitted = fit_plane_normal(points, np.ones(len(points)), normal)
+        centre, sigma = tilt_sigma(points, fitted)
+        tilts.append(float(fitted @ np.array([0.0, 1.0, 0.0])))  # rotation about the circle's centre (+x)
+        sigmas.append(sigma)
+    assert np.median(sigmas) == pytest.approx(np.std(tilts), rel=0.3)
+
+
+def test_tilt_sigma_sees_points_that_wander_off_the_line_together():
+    """Regression (random look 3 of paper scene unloaded-high-front-up, a deck edge 0.34 deg off in pitch):
+    points on the line over the middle and 1-2 px off near one end. The points' own scatter would say the
+    tilt is known to a few thousandths of a degree; the runs say it is not."""
+    rows = np.arange(240)
+    wander = np.where(rows < 60, 1.5 * (60 - rows) / 60, 0.0) + 0.3 * np.sin(rows / 9.0)
+    points, normal = _points_on_circle(np.random.default_rng(0), wander, np.radians(0.08))
+    fitted = fit_plane_normal(points, np.ones(len(points)), normal)
+    residual = points @ fitted
+    along = points @ np.cross(fitted, points.mean(axis=0) / np.linalg.norm(points.mean(axis=0)))
+    white = np.std(residual) / np.sqrt(np.sum((along - along.mean()) ** 2))
+    _, sigma = tilt_sigma(points, fitted)
+    assert sigma > 3 * white
+
+
+def test_tilt_sigma_is_infinite_for_too_few_points_and_refuses_too_few_runs():
+    points, normal = _points_on_circle(np.random.default_rng(1), np.zeros(10), np.radians(0.08))
+    assert tilt_sigma(points, normal)[1] == np.inf
+    with pytest.raises(ValueError, match="at least 3 runs"):
+        tilt_sigma(points, normal, blocks=2)
