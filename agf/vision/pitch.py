@@ -231,7 +231,8 @@ def loaded_evidence(
     face = load_face_direction(pair, camera, camera_in_fork, pallet, pallet_in_fork, config)
     if face is None:
         return pair
-    miss = min(abs(c - face.pitch) for c in pair.candidates)
+    nearest = min(pair.candidates, key=lambda c: abs(c - face.pitch))
+    miss = abs(nearest - face.pitch)
     alone = face.lines >= config.face_alone_lines and face.sigma <= config.face_alone_sigma
     note = ""
     if miss > config.face_agreement and not alone:
@@ -244,9 +245,17 @@ def loaded_evidence(
         lead = face.pitch if miss > config.face_agreement and face.sigma <= config.face_max_sigma else math.nan
         return dataclasses.replace(pair, valid=False, pitch=math.nan, direction=np.full(3, np.nan), ambiguous=False,
                                    note=note, lead=lead)
-    sigma = face.sigma if miss > config.face_agreement else math.hypot(face.sigma, miss / 2)
-    return dataclasses.replace(pair, valid=True, pitch=face.pitch, direction=face.direction, ambiguous=False,
-                               sigma=sigma)
+    if miss > config.face_agreement:
+        return dataclasses.replace(pair, valid=True, pitch=face.pitch, direction=face.direction, ambiguous=False,
+                                   sigma=face.sigma)
+    # Where they agree, the edges count as much as the face: its lines lean together by up to 0.13 deg (one
+    # carton row's joints), the edges err on their own; at the true pose of 36 random looks the face alone was
+    # up to 0.13 deg off where the two agreed, their mean at most 0.08.
+    pitch = (face.pitch + nearest) / 2
+    yaw, _, roll = pallet_in_fork.euler
+    direction = camera_in_fork.inverse().rotation @ Transform.from_euler(0.0, 0.0, 0.0, roll, pitch, yaw).rotation[:, 2]
+    return dataclasses.replace(pair, valid=True, pitch=pitch, direction=direction, ambiguous=False,
+                               sigma=math.hypot(face.sigma, miss / 2))
 
 
 @dataclass(frozen=True)
