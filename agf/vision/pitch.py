@@ -245,12 +245,13 @@ def loaded_evidence(
         lead = face.pitch if miss > config.face_agreement and face.sigma <= config.face_max_sigma else math.nan
         return dataclasses.replace(pair, valid=False, pitch=math.nan, direction=np.full(3, np.nan), ambiguous=False,
                                    note=note, lead=lead)
-    if miss > config.face_agreement:
+    if alone or miss > config.face_agreement:
+        sigma = face.sigma if miss > config.face_agreement else math.hypot(face.sigma, miss / 2)
         return dataclasses.replace(pair, valid=True, pitch=face.pitch, direction=face.direction, ambiguous=False,
-                                   sigma=face.sigma)
-    # Where they agree, the edges count as much as the face: its lines lean together by up to 0.13 deg (one
-    # carton row's joints), the edges err on their own; at the true pose of 36 random looks the face alone was
-    # up to 0.13 deg off where the two agreed, their mean at most 0.08.
+                                   sigma=sigma)
+    # Where a face that does not fix the pitch alone agrees with the edges, the edges count as much as the face:
+    # its lines lean together by up to 0.13 deg (one carton row's joints), the edges err on their own; at the true
+    # pose of 36 random looks the face was up to 0.13 deg off where the two agreed, their mean at most 0.08.
     pitch = (face.pitch + nearest) / 2
     yaw, _, roll = pallet_in_fork.euler
     direction = camera_in_fork.inverse().rotation @ Transform.from_euler(0.0, 0.0, 0.0, roll, pitch, yaw).rotation[:, 2]
