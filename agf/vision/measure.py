@@ -29,7 +29,7 @@ from agf.errors import MeasurementError, PalletHiddenError
 from agf.geometry import Transform
 from agf.measurement import PalletMeasurement
 from agf.pallets import PalletType
-from agf.vision.edge_agreement import EdgeAgreement, EdgeAgreementConfig, check_face_edges
+from agf.vision.edge_agreement import EdgeAgreement, EdgeAgreementConfig, check_face_edges, face_edge_agreement
 from agf.vision.face_model import face_model_from_pallet
 from agf.vision.pallet_pose import (
     PoseEstimate,
@@ -71,6 +71,13 @@ class MeasureConfig:
     # along the line of sight too); more than ``deck_edge_max`` after that, the two disagree: refused.
     deck_edge_research: float = 0.005
     deck_edge_max: float = 0.03
+    # When the image confirms only the face's own pose, not the deck edges' (see ``confirmed``), and the two lie
+    # further apart than twice the measurement's 5 mm bound (so one of them is outside it), the face's edges must
+    # agree clearly better at its pose than at the deck edges': a face seen steeply matched 15 mm high and agreed
+    # 51% against the deck edges' pose 43% (3 mm high; random look 9 of paper scene unloaded-high-rear-up), where
+    # deck edges on other lines put a face 1 mm from the truth 18 mm off, at 1% (look 8 of unloaded-low-rear-up).
+    face_fallback_max: float = 0.01
+    face_fallback_lead: float = 0.25
     # At a new pitch the pose is refined from the last one when the wide search was unambiguous (its
     # margin at least the pose search's minimum); a refinement moving it further than this is replaced
     # by a search nearby.
@@ -225,21 +232,42 @@ def measure_pallet(
             )
         return dataclasses.replace(pose, pallet_in_fork=moved, pallet_in_camera=camera_in_fork.inverse() @ moved)
 
+    def check_fallback(placed: PoseEstimate, own: PoseEstimate, agreement: EdgeAgreement) -> None:
+        """Refuse the face's own pose, confirmed where the deck edges' ``placed`` was not, when the two are
+        more than :attr:`MeasureConfig.face_fallback_max` apart and its face edges do not agree clearly
+        better there (:attr:`MeasureConfig.face_fallback_lead`)."""
+        apart = _distance(own.pallet_in_fork, placed.pallet_in_fork)
+        if apart <= config.face_fallback_max:
+            return
+        (other,) = face_edge_agreement(gray, camera, camera_in_fork, [placed.pallet_in_fork], face, forks,
+                                       config.edges)
+        if agreement.score - other.score < config.face_fallback_lead:
+            raise MeasurementError(
+                f"the top deck's edges put the pallet {apart * 1e3:.0f} mm from the front face's match (at most "
+                f"{config.face_fallback_max * 1e3:.0f}), and the face's edges agree {agreement.score:.0%} at the "
+                f"face's, {other.score:.0%} at the deck edges' (need a lead of "
+                f"{config.face_fallback_lead:.0%}); refusing rather than guessing"
+            )
+
     def confirmed(poses: list[PoseEstimate]) -> tuple[PoseEstimate, EdgeAgreement]:
         """The first pose whose face edges the image confirms (:func:`check_face_edges`), with its
         agreement; else the first one's refusal. The deck edges' pose comes first: seen steeply, the face
         match settled 7-29 mm off in z. The face's own pose is the fallback: through a lens pitched 25 deg,
         the deck edges' pose sat 6.5 mm high and not one pocket top edge agreed with it (foreign render
-        real-lens-unloaded), while the face's own was within 0.5 mm."""
+        real-lens-unloaded), while the face's own was within 0.5 mm (see ``check_fallback``)."""
         t = time.perf_counter()
         refusals = []
         try:
             for candidate in poses:
                 try:
-                    return candidate, check_face_edges(gray, camera, camera_in_fork, candidate.pallet_in_fork, face,
-                                                       forks, config.edges)
+                    agreement = check_face_edges(gray, camera, camera_in_fork, candidate.pallet_in_fork, face, forks,
+                                                 config.edges)
                 except MeasurementError as exc:
                     refusals.append(exc)
+                    continue
+                if refusals:
+                    check_fallback(poses[0], candidate, agreement)
+                return candidate, agreement
             raise refusals[0]
         finally:
             timing["edges"] = timing.get("edges", 0.0) + (time.perf_counter() - t) * 1e3

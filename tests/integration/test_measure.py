@@ -6,6 +6,7 @@ either measured within them or refused with a reason, never wrong and accepted.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import cv2
@@ -35,11 +36,14 @@ def measure(key: str, rendered, pallet_type: str | None = None, colour: bool = F
     return scene, detail.measurement
 
 
-def measure_random_look(key: str):
-    """Measure a random-look scene from the campaign renderer, read as ``agf bench`` reads it (a PNG)."""
+def measure_random_look(key: str, look: int | None = None):
+    """Measure a random-look scene from the campaign renderer, read as ``agf bench`` reads it (a PNG); with
+    ``look``, random look ``look`` of scene ``key`` as ``agf bench`` and its look hunts draw it."""
     from drivers.sim.fast_render import render_fast
 
     scene = load_scene(SCENES / f"{key}.yaml")
+    if look is not None:
+        scene = dataclasses.replace(scene, look="random", seed=scene.seed * 100 + look + 1)
     image = as_bench_reads(render_fast(scene)[0])
     detail = measure_pallet(image, load_camera(scene.camera), scene.camera_in_fork, CATALOGUE[scene.pallet.type],
                             CONFIG.vision.search, forks=CONFIG.forks)
@@ -204,6 +208,16 @@ def test_many_tight_lines_on_the_load_face_give_the_pitch_where_the_load_edges_d
     scene, measurement = measure_random_look("fixed-wrong-accepts/loaded-middle-rear-up-look-0")
     assert within_bounds(errors(scene, measurement)), errors(scene, measurement)
     assert measurement.loaded
+
+
+def test_face_pose_far_from_deck_edges_on_other_lines_is_measured():
+    """The deck edges, found on other lines, put the pallet 18 mm from its face's match, which was 1 mm from
+    the truth; the image confirms the face's pose (its edges agree) and not theirs (1%). A far fallback is
+    refused unless its edges lead this clearly (MeasureConfig.face_fallback_lead; random look 8 of paper
+    scene unloaded-low-rear-up; its opposite, look 9 of unloaded-high-rear-up, is a fixed wrong accept)."""
+    scene, measurement = measure_random_look("paper/unloaded-low-rear-up", look=8)
+    assert within_bounds(errors(scene, measurement)), errors(scene, measurement)
+    assert not measurement.loaded
 
 
 @pytest.mark.parametrize("key", ["paper/unloaded-middle-flat", "paper/loaded-middle-flat", "paper/unloaded-high-flat"])
