@@ -59,15 +59,15 @@ def pick_on(clock: Clock, taken: list, measured: dict) -> tuple[dict, dict, dict
         if clock.realtime:
             controller.on_cycle = None  # no collision check: less work in the real-time loop
         result = controller.run()
-        world.clock.sleep(0.5)  # the axes come to rest on the last setpoints
+        settle(world)  # on the last setpoints: 0.5 s was not always enough for a loaded machine's late SYNCs
         rest = world.positions()
         counts = {name: abs(axis.drive.counts_per_unit) for name, axis in world.network.axes.items()}
         return {"result": result, "summary": pick_summary(result, world)}, counts, rest
 
 
 def settle(world: SimulatedWorld) -> None:
-    """Let the axes come to rest on the start pose, so both picks start from the same one: on a busy
-    machine the wall clock's SYNCs run late and the set-up move ends short of it."""
+    """Let the axes come to rest (their counts unchanged over 0.1 s): on the start pose, so both picks start
+    from the same one, and on a pick's last set-points; on a busy machine the wall clock's SYNCs run late."""
     target = {name: round(world.positions()[name] * axis.drive.counts_per_unit)
               for name, axis in world.network.axes.items()}
     for _ in range(500):
