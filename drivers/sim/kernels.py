@@ -1,9 +1,11 @@
 """Compiled kernels of the renderers (numba): ray-box and ray-plane hits, nearest hits of many rays with
-per-tile object lists, and the randomised look's shading (textures, lights, hard shadows, pocket
-occlusion).
+per-tile object lists, the randomised look's shading (textures, lights, hard shadows, pocket
+occlusion) and its sensor's last step (shot noise, 8-bit rounding).
 
 Objects are packed once per frame into arrays (:func:`pack_objects`): type (0 box, 1 plane), rotation
 and centre (object to camera frame), half extents, and the packed :class:`~drivers.sim.textures.Style`.
+The kernels compute what the renderers' numpy code would, bit for bit (no fast-math): where they skip
+work, a conservative bound shows the skipped work could not change the result.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from drivers.sim.textures import texel
 
 Array = NDArray[np.float64]
 GRID = 32  # cells per side of a light's occluder grid
+CORNERS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)  # of a box, in halves
 SHADOW_BIAS = 2e-4  # m along the normal: a shadow ray must not hit its own surface
 
 
@@ -68,49 +71,75 @@ def hit(k, kind, R, c, half, ox, oy, oz, dx, dy, dz):  # pragma: no cover - comp
 
 
 @njit(cache=True)
-def cast_tiled(origins, directions, tile_of, tile_start, tile_objs, kind, R, c, half,
-               distance, index, face, local, normal):  # pragma: no cover - compiled
-    """Nearest hits of rays (N, 3) against the objects listed for each ray's tile; fills the outputs
-    (distance inf and index -1 for none; ``local`` in the object's frame, ``normal`` in the camera's)."""
+def cast_tiled(origins, directions, tile_of, tile_start, tile_objs, tile_near, kind, R, c, half,
+               distance, index, face):  # pragma: no cover - compiled
+    """Nearest hits of rays (N, 3) against the objects listed for each ray's tile, nearest first by a
+    lower bound ``tile_near`` on the distance of any hit of them; fills the outputs (N,) (distance inf and
+    index -1 for none; see :func:`hit` for the face code). Of equally near hits the lowest object's wins,
+    as when every object is tried in order."""
     for i in range(origins.shape[0]):
         ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
         dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
         best, best_k, best_f = math.inf, -1, 0
         tile = tile_of[i]
         for j in range(tile_start[tile], tile_start[tile + 1]):
+            if tile_near[j] > best:
+                break  # nothing further on can be hit nearer
             k = tile_objs[j]
             t, f = hit(k, kind, R, c, half, ox, oy, oz, dx, dy, dz)
-            if t < best:
+            if t < best or (t == best and k < best_k):
                 best, best_k, best_f = t, k, f
         distance[i], index[i], face[i] = best, best_k, best_f
-        if best_k < 0:
+
+
+@njit(cache=True)
+def gather_hits(rows, origins, directions, distance, index, face, R, c, ray_origins, ray_directions, hit_distance,
+                hit_index, local, normal):  # pragma: no cover - compiled
+    """The rays ``rows`` (S,) among rays ``origins``, ``directions`` (N, 3) whose nearest hits
+    :func:`cast_tiled` found (``distance``, ``index``, ``face`` (N,)), as the shaders take them: fills their
+    origins and directions (S, 3), hit distances and objects (S,), the hit points in their object's frame
+    ``local`` (S, 3) and the surface normals in the camera's ``normal`` (S, 3) (zero for rays that hit
+    nothing)."""
+    for j in range(rows.shape[0]):
+        i = rows[j]
+        k, f, t = index[i], face[i], distance[i]
+        for a in range(3):
+            ray_origins[j, a], ray_directions[j, a] = origins[i, a], directions[i, a]
+        hit_distance[j], hit_index[j] = t, k
+        if k < 0:
+            for a in range(3):
+                local[j, a], normal[j, a] = 0.0, 0.0
             continue
-        px, py, pz = ox + best * dx - c[best_k, 0], oy + best * dy - c[best_k, 1], oz + best * dz - c[best_k, 2]
+        px = origins[i, 0] + t * directions[i, 0] - c[k, 0]
+        py = origins[i, 1] + t * directions[i, 1] - c[k, 1]
+        pz = origins[i, 2] + t * directions[i, 2] - c[k, 2]
         for a in range(3):
-            local[i, a] = R[best_k, 0, a] * px + R[best_k, 1, a] * py + R[best_k, 2, a] * pz
-        sign = 1.0 if best_f % 2 == 1 else -1.0
+            local[j, a] = R[k, 0, a] * px + R[k, 1, a] * py + R[k, 2, a] * pz
+        sign = 1.0 if f % 2 == 1 else -1.0
         for a in range(3):
-            normal[i, a] = sign * R[best_k, a, best_f // 2]
+            normal[j, a] = sign * R[k, a, f // 2]
 
 
-def tile_lists(rects: list, width: int, height: int, tile: int) -> tuple[NDArray, NDArray]:
+def tile_lists(
+    rects: list, width: int, height: int, tile: int, reachable: NDArray[np.bool_] | None = None
+) -> tuple[NDArray, NDArray]:
     """CSR lists (start (T + 1,), objects) of the objects whose screen rectangle (None: anywhere) meets
-    each ``tile`` x ``tile`` pixel tile, tiles row by row."""
+    each ``tile`` x ``tile`` pixel tile, tiles row by row, and which the tile's rays can reach at all
+    (``reachable`` (T, M); None: all)."""
     ntx, nty = -(-width // tile), -(-height // tile)
-    lists: list[list[int]] = [[] for _ in range(ntx * nty)]
+    meets = np.zeros((nty, ntx, len(rects)), bool)
     for k, r in enumerate(rects):
         if r is None:
-            x0, y0, x1, y1 = 0, 0, ntx - 1, nty - 1
-        else:
-            x0, y0 = max(int(r[0] // tile), 0), max(int(r[1] // tile), 0)
-            x1, y1 = min(int(r[2] // tile), ntx - 1), min(int(r[3] // tile), nty - 1)
-        for ty in range(y0, y1 + 1):
-            for tx in range(x0, x1 + 1):
-                lists[ty * ntx + tx].append(k)
-    start = np.zeros(len(lists) + 1, np.int64)
-    start[1:] = np.cumsum([len(v) for v in lists])
-    objs = np.array([k for v in lists for k in v], np.int64)
-    return start, objs
+            meets[:, :, k] = True
+            continue
+        x0, y0 = max(int(r[0] // tile), 0), max(int(r[1] // tile), 0)
+        x1, y1 = min(int(r[2] // tile), ntx - 1), min(int(r[3] // tile), nty - 1)
+        meets[y0 : max(y1 + 1, 0), x0 : max(x1 + 1, 0), k] = True
+    meets = meets.reshape(ntx * nty, len(rects))
+    tiles, objs = np.nonzero(meets if reachable is None else meets & reachable)
+    start = np.zeros(ntx * nty + 1, np.int64)
+    start[1:] = np.cumsum(np.bincount(tiles, minlength=ntx * nty))
+    return start, objs.astype(np.int64)
 
 
 # -- randomised look: lights and shading ----------------------------------------------------------
@@ -120,66 +149,85 @@ LIGHT_FIELDS = 28  # type, power, colour 3, direction 3, position 3, reference d
 
 
 def pack_lights(lights: list, kind: NDArray, R: Array, c: Array, half: Array) -> tuple:
-    """Packed lights (L, 27), their occluder grids (L, 13: view axis, e1, e2, x0, y0, cell, unused) and
-    CSR occluder lists (start (L, GRID * GRID + 2), objects): each box is listed in the grid cells its
-    outline covers seen from the light; the last cell holds boxes the view cannot bound."""
-    packed = np.zeros((len(lights), LIGHT_FIELDS))
+    """Packed lights (L, 28), their occluder grids (L, 13: view axis, e1, e2, x0, y0, cell, unused), CSR
+    occluder lists (start (L, GRID * GRID + 2), objects) and occluder bounds (L, M, 6). Each box is listed
+    in the grid cells its outline seen from the light covers (the last cell holds the boxes the view
+    cannot bound) and bounded (see :func:`_bounds`; a plane: nowhere)."""
+    packed = np.array([_light_row(light) for light in lights]).reshape(len(lights), LIGHT_FIELDS)
     grids = np.zeros((len(lights), 13))
     starts = np.zeros((len(lights), GRID * GRID + 2), np.int64)
-    objs: list[int] = []
+    bounds = np.tile([-math.inf, -math.inf, math.inf, math.inf, 0.0, math.inf], (len(lights), len(kind), 1))
+    objs = []
     boxes = np.flatnonzero(kind == 0)
-    signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float)
     for n, light in enumerate(lights):
-        sun = light.direction is not None
-        row = [0.0 if sun else 1.0, light.power, *light.colour]
-        row += list(light.direction if sun else np.zeros(3)) + list(light.position if not sun else np.zeros(3))
-        row += [light.reference_distance, 1.0 if light.door is not None else 0.0]
-        row += [*np.concatenate(light.door[:4]), *light.door[4:]] if light.door is not None else [0.0] * 14
-        packed[n] = [*row, float(light.shadows)]
-        # the view: along the sun, or down from the lamp
-        axis = np.asarray(light.direction, float) if sun else light.down
-        axis = axis / np.linalg.norm(axis)
-        e1 = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
-        e1 /= np.linalg.norm(e1)
-        e2 = np.cross(axis, e1)
-        rects = []
-        for k in boxes:
-            corners = (signs * half[k]) @ R[k].T + c[k]
-            w = corners if sun else corners - light.position
-            depth = np.ones(8) if sun else w @ axis
-            ok = sun or bool(np.all(depth > 0.05 * np.linalg.norm(w, axis=1)))
-            rects.append(np.r_[(w @ e1 / depth).min(), (w @ e2 / depth).min(), (w @ e1 / depth).max(),
-                               (w @ e2 / depth).max()] if ok else None)
-        finite = np.array([r for r in rects if r is not None]).reshape(-1, 4)
-        x0, y0 = (finite[:, 0].min(), finite[:, 1].min()) if len(finite) else (0.0, 0.0)
-        size = max(finite[:, 2].max() - x0, finite[:, 3].max() - y0, 1e-6) if len(finite) else 1.0
+        axis, e1, e2 = _view(light)
+        outlines = [_bounds(light, axis, e1, e2, (CORNERS * half[k]) @ R[k].T + c[k]) for k in boxes]
+        bounds[n, boxes] = np.array(outlines).reshape(-1, 6)
+        rects = np.array([r for r in outlines if np.isfinite(r[0])]).reshape(-1, 6)
+        x0, y0 = (rects[:, 0].min(), rects[:, 1].min()) if len(rects) else (0.0, 0.0)
+        size = max(rects[:, 2].max() - x0, rects[:, 3].max() - y0, 1e-6) if len(rects) else 1.0
         cell = size / GRID * (1 + 1e-9)
         grids[n] = [*axis, *e1, *e2, x0, y0, cell, 0.0]
-        cells: list[list[int]] = [[] for _ in range(GRID * GRID + 1)]
-        for k, r in zip(boxes, rects, strict=True):
-            if r is None:
-                for v in cells:
-                    v.append(int(k))
+        covers = np.zeros((GRID * GRID + 1, len(boxes)), bool)
+        for b, r in enumerate(outlines):
+            if not np.isfinite(r[0]):
+                covers[:, b] = True
                 continue
             i0, j0 = int((r[0] - x0) // cell), int((r[1] - y0) // cell)
             i1, j1 = min(int((r[2] - x0) // cell), GRID - 1), min(int((r[3] - y0) // cell), GRID - 1)
-            for j in range(max(j0, 0), j1 + 1):
-                for i in range(max(i0, 0), i1 + 1):
-                    cells[j * GRID + i].append(int(k))
-        starts[n, 0] = len(objs)
-        for m, v in enumerate(cells):
-            objs.extend(v)
-            starts[n, m + 1] = len(objs)
-    return packed, grids, starts, np.array(objs, np.int64)
+            rows = np.arange(max(j0, 0), j1 + 1)[:, None] * GRID + np.arange(max(i0, 0), i1 + 1)
+            covers[rows.ravel(), b] = True
+        cells, listed = np.nonzero(covers)
+        starts[n] = sum(map(len, objs)) + np.r_[0, np.cumsum(np.bincount(cells, minlength=GRID * GRID + 1))]
+        objs.append(boxes[listed])
+    return packed, grids, starts, np.concatenate(objs) if objs else np.zeros(0, np.int64), bounds
+
+
+def _light_row(light) -> list[float]:
+    """A :class:`~drivers.sim.looks.CameraLight` packed (:data:`LIGHT_FIELDS`)."""
+    sun = light.direction is not None
+    row = [0.0 if sun else 1.0, light.power, *light.colour]
+    row += list(light.direction if sun else np.zeros(3)) + list(light.position if not sun else np.zeros(3))
+    row += [light.reference_distance, 1.0 if light.door is not None else 0.0]
+    row += [*np.concatenate(light.door[:4]), *light.door[4:]] if light.door is not None else [0.0] * 14
+    return [*row, float(light.shadows)]
+
+
+def _view(light) -> tuple[Array, Array, Array]:
+    """The view of a light's occluder grid: its axis (along the sun, or down from the lamp) and two unit
+    vectors across it (3,)."""
+    axis = np.asarray(light.direction, float) if light.direction is not None else light.down
+    axis = axis / np.linalg.norm(axis)
+    e1 = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    return axis, e1, np.cross(axis, e1)
+
+
+def _bounds(light, axis: Array, e1: Array, e2: Array, corners: Array) -> Array:
+    """(6,) bounds of a box (corners (8, 3)) in a light's view (see :func:`pack_lights`) for its shadow
+    rays: the outline (x0, y0, x1, y1) of its corners, along the sun or projected from the lamp (infinite
+    where a corner is not well in front of the lamp); the inverse of their least depth (1 for the sun);
+    how high they reach towards the light (m: along the sun, or up from the lamp)."""
+    sun = light.direction is not None
+    w = corners if sun else corners - light.position
+    depth = np.ones(8) if sun else w @ axis
+    top = (w @ axis).max() if sun else -depth.min()
+    if not (sun or bool(np.all(depth > 0.05 * np.linalg.norm(w, axis=1)))):
+        return np.array([-math.inf, -math.inf, math.inf, math.inf, 0.0, top])
+    return np.r_[(w @ e1 / depth).min(), (w @ e2 / depth).min(), (w @ e1 / depth).max(), (w @ e2 / depth).max(),
+                 1.0 / depth.min(), top]
 
 
 @njit(cache=True)
 def shade_look(origins, directions, distance, normals, local, index, kind, R, c, half, style, lights, grids,
-               starts, objs, pallets, ambient, sky, out):  # pragma: no cover - compiled
+               starts, objs, bounds, pallets, ambient, sky, out):  # pragma: no cover - compiled
     """Colour (N, 3, 0..255 before exposure) of the hits of rays: texture x (ambient + lights, each Lambertian,
     lamps falling off with distance, zero in shadow or outside a door's patch) x pocket occlusion;
     ``sky`` where nothing was hit. ``pallets`` (P, 16): rotation (9), centre (3), length, width, pocket
     height, deck bottom."""
+    # The loops over lights' occluders and over pallets stay in this body: around a loop in an inlined
+    # helper numba keeps the reference counting of every array argument, two atomic updates per array
+    # and call (they took a third of the shading time).
     for i in range(origins.shape[0]):
         k = index[i]
         if k < 0:
@@ -199,20 +247,34 @@ def shade_look(origins, directions, distance, normals, local, index, kind, R, c,
         nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
         eb, eg, er = ambient, ambient, ambient
         for n in range(lights.shape[0]):
-            e = _light(n, px, py, pz, nx, ny, nz, lights, grids, starts, objs, kind, R, c, half)
+            e, cell, ox, oy, oz, wx, wy, wz, reach, vx, vy, height = _light(n, px, py, pz, nx, ny, nz, lights, grids)
+            if cell >= 0:
+                for j in range(starts[n, cell], starts[n, cell + 1]):
+                    box = objs[j]
+                    if box == k or _apart(bounds, n, box, vx, vy, height):
+                        continue  # the shadow ray leaves the point's own box; it cannot reach this one
+                    if hit(box, kind, R, c, half, ox, oy, oz, wx, wy, wz)[0] < reach:
+                        e = 0.0
+                        break
             eb += e * lights[n, 2]
             eg += e * lights[n, 3]
             er += e * lights[n, 4]
-        occlusion = _pocket_occlusion(px, py, pz, pallets)
+        occlusion = 1.0
+        for m in range(pallets.shape[0]):
+            occlusion *= _pocket_occlusion(m, px, py, pz, pallets)
         out[i, 0] = 255.0 * b * eb * occlusion
         out[i, 1] = 255.0 * g * eg * occlusion
         out[i, 2] = 255.0 * r * er * occlusion
 
 
 @njit(cache=True, inline="always")
-def _light(n, px, py, pz, nx, ny, nz, lights, grids, starts, objs, kind, R, c, half):  # pragma: no cover
-    """Irradiance light ``n`` gives a point with a normal (see :func:`shade_look`)."""
-    L = lights[n]  # a view; this function is inlined (array arguments cost reference counting per call)
+def _light(n, px, py, pz, nx, ny, nz, lights, grids):  # pragma: no cover - compiled
+    """Irradiance light ``n`` gives a point with a normal unless an occluder is in the way (see
+    :func:`shade_look`), and the shadow ray that decides it: the occluder grid cell to search (-1: none
+    needed), origin (3), direction (3), reach (m), and the point's place in the grid's view (2; nan where
+    the view cannot place it) and height towards the light (m, see :func:`_bounds`; -inf where the view
+    cannot place it)."""
+    L = lights[n]
     if L[0] == 0.0:
         wx, wy, wz, reach, falloff = L[5], L[6], L[7], math.inf, 1.0
     else:
@@ -221,52 +283,74 @@ def _light(n, px, py, pz, nx, ny, nz, lights, grids, starts, objs, kind, R, c, h
         wx, wy, wz = wx / reach, wy / reach, wz / reach
         falloff = (L[11] / max(reach, 0.3)) ** 2
     cosine = nx * wx + ny * wy + nz * wz
-    if cosine <= 0:
-        return 0.0
     ox, oy, oz = px + SHADOW_BIAS * nx, py + SHADOW_BIAS * ny, pz + SHADOW_BIAS * nz
+    if cosine <= 0:
+        return 0.0, -1, ox, oy, oz, wx, wy, wz, reach, math.nan, math.nan, -math.inf
     if L[12] > 0:  # a door the sun shines through: lit only where the ray passes its opening
         denom = wx * L[16] + wy * L[17] + wz * L[18]
         if denom != 0:
             t = ((L[13] - ox) * L[16] + (L[14] - oy) * L[17] + (L[15] - oz) * L[18]) / denom
             if t > 0:
                 qx, qy, qz = ox + t * wx - L[13], oy + t * wy - L[14], oz + t * wz - L[15]
-                if abs(qx * L[19] + qy * L[20] + qz * L[21]) >= L[25]:
-                    return 0.0
-                if abs(qx * L[22] + qy * L[23] + qz * L[24]) >= L[26]:
-                    return 0.0
+                if (abs(qx * L[19] + qy * L[20] + qz * L[21]) >= L[25]
+                        or abs(qx * L[22] + qy * L[23] + qz * L[24]) >= L[26]):  # fmt: skip
+                    return 0.0, -1, ox, oy, oz, wx, wy, wz, reach, math.nan, math.nan, -math.inf
     if L[27] == 0.0:
-        return L[1] * cosine * falloff
+        return L[1] * cosine * falloff, -1, ox, oy, oz, wx, wy, wz, reach, math.nan, math.nan, -math.inf
     G = grids[n]
     if L[0] == 0.0:
         vx, vy, depth = px * G[3] + py * G[4] + pz * G[5], px * G[6] + py * G[7] + pz * G[8], 1.0
+        height = px * G[0] + py * G[1] + pz * G[2]
     else:
         ax, ay, az = px - L[8], py - L[9], pz - L[10]
         depth = ax * G[0] + ay * G[1] + az * G[2]
         vx, vy = ax * G[3] + ay * G[4] + az * G[5], ax * G[6] + ay * G[7] + az * G[8]
         if depth <= 0.05 * math.sqrt(ax * ax + ay * ay + az * az):
             depth = -1.0
-    cell = GRID * GRID  # outside the grid: only the boxes the view cannot bound
-    if depth > 0:
-        ci, cj = math.floor((vx / depth - G[9]) / G[11]), math.floor((vy / depth - G[10]) / G[11])
-        if 0 <= ci < GRID and 0 <= cj < GRID:
-            cell = cj * GRID + ci
-    for j in range(starts[n, cell], starts[n, cell + 1]):
-        t, _ = hit(objs[j], kind, R, c, half, ox, oy, oz, wx, wy, wz)
-        if t < reach:
-            return 0.0
-    return L[1] * cosine * falloff
+        height = -depth  # up from the lamp
+    outside = GRID * GRID  # the cell of the boxes the view cannot bound
+    if depth <= 0:
+        return L[1] * cosine * falloff, outside, ox, oy, oz, wx, wy, wz, reach, math.nan, math.nan, -math.inf
+    ci, cj = math.floor((vx / depth - G[9]) / G[11]), math.floor((vy / depth - G[10]) / G[11])
+    cell = cj * GRID + ci if 0 <= ci < GRID and 0 <= cj < GRID else outside
+    return L[1] * cosine * falloff, cell, ox, oy, oz, wx, wy, wz, reach, vx / depth, vy / depth, height
 
 
 @njit(cache=True, inline="always")
-def _pocket_occlusion(px, py, pz, pallets):  # pragma: no cover - compiled
-    """Ambient occlusion inside pockets: surfaces behind the front face, under the deck, grow dark."""
-    factor = 1.0
-    for m in range(pallets.shape[0]):
-        P = pallets[m]
-        dx, dy, dz = px - P[9], py - P[10], pz - P[11]
-        x = P[0] * dx + P[3] * dy + P[6] * dz
-        y = P[1] * dx + P[4] * dy + P[7] * dz
-        z = P[2] * dx + P[5] * dy + P[8] * dz
-        if 0.002 < x < P[12] and abs(y) < P[13] / 2 and z < P[14] / 2 - 1e-4 and z > P[15] - 0.01:
-            factor *= 0.12 + 0.3 * math.exp(-x / 0.03)
-    return factor
+def _apart(bounds, n, k, vx, vy, height):  # pragma: no cover - compiled
+    """Whether a shadow ray towards light ``n`` from a point at (``vx``, ``vy``) in its view and ``height``
+    towards it (see :func:`_light`) certainly misses box ``k`` (``bounds``, see :func:`_bounds`): the ray
+    climbs from SHADOW_BIAS below the point's height, and strays from the point's place by at most
+    SHADOW_BIAS (1 + max |v|) / depth inside a box; 1e-9 to spare for rounding."""
+    if bounds[n, k, 5] <= height - SHADOW_BIAS * (1.0 + 1e-6) - 1e-9:
+        return True
+    margin = SHADOW_BIAS * (1.0 + max(abs(vx), abs(vy))) * (1.0 + 1e-6) * bounds[n, k, 4] + 1e-9
+    return (vx < bounds[n, k, 0] - margin or vx > bounds[n, k, 2] + margin or vy < bounds[n, k, 1] - margin
+            or vy > bounds[n, k, 3] + margin)  # fmt: skip
+
+
+@njit(cache=True, inline="always")
+def _pocket_occlusion(m, px, py, pz, pallets):  # pragma: no cover - compiled
+    """Ambient occlusion inside pallet ``m``'s pockets: surfaces behind the front face, under the deck,
+    grow dark (factor 0.12-0.40; 1 elsewhere)."""
+    P = pallets[m]
+    dx, dy, dz = px - P[9], py - P[10], pz - P[11]
+    x = P[0] * dx + P[3] * dy + P[6] * dz
+    y = P[1] * dx + P[4] * dy + P[7] * dz
+    z = P[2] * dx + P[5] * dy + P[8] * dz
+    if 0.002 < x < P[12] and abs(y) < P[13] / 2 and z < P[14] / 2 - 1e-4 and z > P[15] - 0.01:
+        return 0.12 + 0.3 * math.exp(-x / 0.03)
+    return 1.0
+
+
+@njit(cache=True)
+def add_shot_noise(image, noise, out):  # pragma: no cover - compiled
+    """8-bit ``out`` (N,) of ``image`` (N,) plus ``noise`` (N,) times the shot noise's growth with
+    brightness, sqrt(0.3 + 0.7 min(max(image, 0), 255) / 128), rounded half to even and clipped to
+    0..255: float32 steps, each rounded as numpy and OpenCV round them on float32 arrays."""
+    gain, floor = np.float32(0.7 / 128.0), np.float32(0.3)
+    zero, top = np.float32(0.0), np.float32(255.0)
+    for i in range(image.shape[0]):
+        value = image[i]
+        sigma = np.sqrt(min(max(value, zero), top) * gain + floor)
+        out[i] = np.uint8(np.rint(min(max(value + sigma * noise[i], zero), top)))
