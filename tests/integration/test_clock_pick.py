@@ -116,7 +116,8 @@ def test_a_pick_on_simulated_time_takes_the_same_trajectory_as_on_wall_time(both
         one = 1.0 / count
         assert a.plan.align[name] == pytest.approx(b.plan.align[name], abs=one)
         assert a.plan.insert.get(name, 0.0) == pytest.approx(b.plan.insert.get(name, 0.0), abs=one)
-        assert wall_rest[name] == pytest.approx(sim_rest[name], abs=one)
+        # In counts: a one-count difference, 2e-6 rad on the tilt, failed approx(abs=one) on its float rounding.
+        assert abs(round(wall_rest[name] * count) - round(sim_rest[name] * count)) <= 1, (name, wall_rest, sim_rest)
     cycle = CONFIG.sections["drives"]["cycle_ms"] / 1e3
     # The align motion starts from the same pose on both clocks; the insert motion from wherever the
     # align motion arrived, which on the wall clock is anywhere within the arrival tolerance.
