@@ -595,7 +595,8 @@ class Cia402Axis(Axis):
         self._first_sync: int | None = None  # the SYNC the first TPDO1 answered
         self._tpdos = 0  # TPDO1s received since
         self._deficits: collections.deque[tuple[int, int]] = collections.deque(maxlen=FEEDBACK_WINDOW + 1)
-        self._rejected = 0  # feedback PDOs of the wrong length
+        self._rejected = 0  # feedback PDOs of the wrong length or with an impossible position
+        self._accepted: tuple[float, int] | None = None  # (time, position counts) of the last TPDO1 used
         self._silent = False  # the drive stopped answering: no orderly shutdown over SDO
         self._rpdo_lock = threading.Lock()  # RPDO1 is written by the caller and by the TPDO callback (PP)
         self._tpdo_arrived = threading.Event()
@@ -637,7 +638,7 @@ class Cia402Axis(Axis):
         self._step = f"setting the mode of operation (0x6060 = {MODES[self.drive.mode]})"
         self._set_mode(MODES[self.drive.mode], timeout)
         for pdo in (node.tpdo[1], node.tpdo[2]):
-            pdo.callbacks.insert(0, self._check_length)  # before BaseNode402 decodes it
+            pdo.callbacks.insert(0, self._check_frame)  # before BaseNode402 decodes it
         node.tpdo[1].add_callback(self._on_tpdo)
         self._step = "NMT OPERATIONAL"
         self._go_operational(timeout)
@@ -880,7 +881,8 @@ class Cia402Axis(Axis):
         missing = deficit - first_deficit
         if missing <= FEEDBACK_MISSING:
             return
-        rejected = f", {self._rejected} rejected for their length" if self._rejected else ""
+        rejected = (f", {self._rejected} rejected for their length or an impossible position"
+                    if self._rejected else "")
         silent_since = self._deficits[-missing][1] if missing < len(self._deficits) else first_count
         if silent_since == count:  # one run of silence, not scattered losses
             self._silent = True
@@ -898,13 +900,30 @@ class Cia402Axis(Axis):
         if state == 0 and self._supervised and self._fault is None:
             self._raise_fault("drive rebooted (boot-up message): its configuration and power state are lost")
 
-    def _check_length(self, pdo: Any) -> None:
+    def _check_frame(self, pdo: Any) -> None:
+        """Reject a feedback PDO of the wrong length, or one whose position the axis cannot have reached
+        since the last one used (a corrupted or foreign frame of the right length). Raising stops
+        canopen's callbacks: no value of a rejected frame reaches the feedback."""
         expected = sum(variable.length for variable in pdo.map) // 8
         if len(pdo.data) != expected:
             self._rejected += 1
-            # raising stops canopen's callbacks: no value of this frame reaches the feedback
             raise ValueError(f"axis {self.name}: TPDO 0x{pdo.cob_id:X} has {len(pdo.data)} bytes, its mapping "
                              f"{expected}: rejected")
+        position = next((variable.raw for variable in pdo.map if variable.index == 0x6064), None)
+        if position is None:
+            return
+        now = self._net.clock.monotonic()
+        if self._accepted is not None:
+            then, last = self._accepted
+            # twice the top speed over the time since, plus two cycles: a frame a cycle late still passes
+            reach = abs(self._scale) * 2 * self.limits.max_velocity * (max(now - then, 0.0)
+                                                                       + 2 * self._net.settings.cycle)
+            if abs(position - last) > reach + 1:
+                self._rejected += 1
+                raise ValueError(f"axis {self.name}: TPDO 0x{pdo.cob_id:X} position {position} counts is "
+                                 f"{abs(position - last)} from the last ({last}), more than the axis can move "
+                                 f"in {now - then:.3f} s: rejected")
+        self._accepted = (now, position)
 
     def _on_tpdo(self, pdo: Any) -> None:
         self._last_tpdo = self._net.clock.monotonic()

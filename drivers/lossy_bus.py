@@ -129,6 +129,19 @@ def truncate(cob_id: int, length: int) -> Mangle:
     return cut
 
 
+def scramble(cob_id: int, seed: int = 0) -> Mangle:
+    """A :meth:`LossyBus.mangle` function: frames with ``cob_id`` arrive with their length but random data."""
+    rng = random.Random(seed)
+
+    def garble(msg: can.Message) -> can.Message:
+        if msg.arbitration_id != cob_id:
+            return msg
+        return can.Message(arbitration_id=msg.arbitration_id, data=rng.randbytes(len(msg.data)),
+                           is_extended_id=msg.is_extended_id, timestamp=msg.timestamp)
+
+    return garble
+
+
 def drop(cob_id: int) -> Mangle:
     """A :meth:`LossyBus.mangle` function: frames with ``cob_id`` never arrive, all others do."""
     return lambda msg: None if msg.arbitration_id == cob_id else msg

@@ -37,7 +37,7 @@ from agf.geometry import Transform
 from agf.paths import DEFAULT_CONFIG, repo_path
 from agf.scene import load_scene
 from drivers.camera_source import Folder
-from drivers.lossy_bus import LossyBus, drop, truncate
+from drivers.lossy_bus import LossyBus, drop, scramble, truncate
 from drivers.sim.render import render
 from drivers.sim.world import START, SimulatedWorld
 
@@ -203,6 +203,8 @@ SCENARIOS: dict[str, tuple[Callable[[FaultPick], None], str, str]] = {
                         "CAN frames lost: no heartbeat"),
     "tpdo_wrong_length": (lambda pick: pick.bus.mangle(truncate(0x180 + _node(pick, "reach"), 3)), "aligning",
                           "rejected for their length"),
+    "tpdo_garbled": (lambda pick: pick.bus.mangle(scramble(0x180 + _node(pick, "reach"))), "aligning",
+                     "an impossible position"),
     "can_bus_gone": (lambda pick: pick.bus.unplug(), "aligning", "CAN bus gone"),
     "drive_reboot": (lambda pick: pick.drives["reach"].reboot(), "aligning", "rebooted"),
     "emcy_warning": (lambda pick: pick.drives["lift"].emcy(0x4210), "aligning", "EMCY 0x4210"),
