@@ -119,7 +119,8 @@ def check_face_edges(
     config: EdgeAgreementConfig = EdgeAgreementConfig(),
 ) -> EdgeAgreement:
     """The pose's :class:`EdgeAgreement`, or :class:`MeasurementError` when its face edges are not in the
-    image, or the face moved within its plane by a board or a block explains them better."""
+    image, or the face moved within its plane by a board or a block explains them better. The error
+    carries the pose's own :class:`EdgeAgreement` in ``found``."""
     centre = pallet_in_fork.apply(np.array([0.0, 0.0, (face.z_bottom + face.z_top) / 2]))
     sight = (centre - camera_in_fork.translation) / np.linalg.norm(centre - camera_in_fork.translation)
     moves = [pallet_in_fork.apply_direction(np.array([0.0, dy, dz])) for dy, dz in config.shifts]
@@ -131,13 +132,14 @@ def check_face_edges(
         raise MeasurementError(
             f"the image does not confirm the measured pose: its face edges agree {own.score:.0%} "
             f"(need {config.min_score:.0%}; weakest: {weakest} {own.fractions.get(weakest, 0.0):.0%}); "
-            "refusing rather than guessing"
+            "refusing rather than guessing", found=own,
         )
     best = int(np.argmax([a.score for a in others]))
     if others[best].score > own.score + config.max_lead:
         raise MeasurementError(
             f"the image does not confirm the measured pose: the face moved {_move(best, config)} explains its "
-            f"edges better ({others[best].score:.0%} against {own.score:.0%}); refusing rather than guessing"
+            f"edges better ({others[best].score:.0%} against {own.score:.0%}); refusing rather than guessing",
+            found=own,
         )
     return own
 

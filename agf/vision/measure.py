@@ -29,7 +29,7 @@ from agf.errors import MeasurementError, PalletHiddenError
 from agf.geometry import Transform
 from agf.measurement import PalletMeasurement
 from agf.pallets import PalletType
-from agf.vision.edge_agreement import EdgeAgreement, EdgeAgreementConfig, check_face_edges, face_edge_agreement
+from agf.vision.edge_agreement import EdgeAgreement, EdgeAgreementConfig, check_face_edges
 from agf.vision.face_model import face_model_from_pallet
 from agf.vision.pallet_pose import (
     PoseEstimate,
@@ -232,16 +232,12 @@ def measure_pallet(
             )
         return dataclasses.replace(pose, pallet_in_fork=moved, pallet_in_camera=camera_in_fork.inverse() @ moved)
 
-    def check_fallback(placed: PoseEstimate, own: PoseEstimate, agreement: EdgeAgreement) -> None:
-        """Refuse the face's own pose, confirmed where the deck edges' ``placed`` was not, when the two are
-        more than :attr:`MeasureConfig.face_fallback_max` apart and its face edges do not agree clearly
-        better there (:attr:`MeasureConfig.face_fallback_lead`)."""
+    def check_fallback(placed: PoseEstimate, own: PoseEstimate, agreement: EdgeAgreement, other: EdgeAgreement) -> None:
+        """Refuse the face's own pose, confirmed where the deck edges' ``placed`` was not (its edges agreed
+        ``other``), when the two are more than :attr:`MeasureConfig.face_fallback_max` apart and its face
+        edges do not agree clearly better there (:attr:`MeasureConfig.face_fallback_lead`)."""
         apart = _distance(own.pallet_in_fork, placed.pallet_in_fork)
-        if apart <= config.face_fallback_max:
-            return
-        (other,) = face_edge_agreement(gray, camera, camera_in_fork, [placed.pallet_in_fork], face, forks,
-                                       config.edges)
-        if agreement.score - other.score < config.face_fallback_lead:
+        if apart > config.face_fallback_max and agreement.score - other.score < config.face_fallback_lead:
             raise MeasurementError(
                 f"the top deck's edges put the pallet {apart * 1e3:.0f} mm from the front face's match (at most "
                 f"{config.face_fallback_max * 1e3:.0f}), and the face's edges agree {agreement.score:.0%} at the "
@@ -266,7 +262,7 @@ def measure_pallet(
                     refusals.append(exc)
                     continue
                 if refusals:
-                    check_fallback(poses[0], candidate, agreement)
+                    check_fallback(poses[0], candidate, agreement, refusals[0].found)
                 return candidate, agreement
             raise refusals[0]
         finally:
