@@ -44,7 +44,11 @@ def euler_from_matrix(R: ArrayLike) -> tuple[float, float, float]:
 
     At gimbal lock (``|pitch| = pi/2``) roll is set to zero and yaw takes the whole rotation.
     """
-    R = check_rotation(R)
+    return _euler_from_rotation(check_rotation(R))
+
+
+def _euler_from_rotation(R: NDArray[np.float64]) -> tuple[float, float, float]:
+    """:func:`euler_from_matrix` of a rotation already checked."""
     pitch = float(np.arcsin(np.clip(-R[2, 0], -1.0, 1.0)))
     if abs(R[2, 0]) < 1.0 - 1e-12:
         yaw = float(np.arctan2(R[1, 0], R[0, 0]))
@@ -100,11 +104,26 @@ class Transform:
         object.__setattr__(self, "translation", t)
 
     @classmethod
+    def _built(cls, rotation: NDArray[np.float64], translation: NDArray[np.float64]) -> Transform:
+        """A transform from a rotation that is proper by construction (Euler angles, products and
+        transposes of checked ones): only finiteness is checked. The full check costs 20 us, and the
+        pose search builds thousands of transforms a measurement."""
+        R, t = np.array(rotation, dtype=float), np.array(translation, dtype=float)
+        if not (np.isfinite(R).all() and np.isfinite(t).all()):
+            raise ValueError(f"transform must be finite, got rotation {R.tolist()} and translation {t.tolist()}")
+        R.setflags(write=False)
+        t.setflags(write=False)
+        built = object.__new__(cls)
+        object.__setattr__(built, "rotation", R)
+        object.__setattr__(built, "translation", t)
+        return built
+
+    @classmethod
     def from_euler(
         cls, x: float = 0.0, y: float = 0.0, z: float = 0.0, roll: float = 0.0, pitch: float = 0.0, yaw: float = 0.0
     ) -> Transform:
         """Transform from a translation (m) and Z-Y'-X'' Euler angles (rad)."""
-        return cls(matrix_from_euler(yaw, pitch, roll), np.array([x, y, z], dtype=float))
+        return cls._built(matrix_from_euler(yaw, pitch, roll), np.array([x, y, z], dtype=float))
 
     @classmethod
     def from_matrix(cls, T: ArrayLike) -> Transform:
@@ -127,18 +146,18 @@ class Transform:
     @property
     def euler(self) -> tuple[float, float, float]:
         """``(yaw, pitch, roll)`` in rad."""
-        return euler_from_matrix(self.rotation)
+        return _euler_from_rotation(self.rotation)
 
     def inverse(self) -> Transform:
         """``B_in_A`` from ``A_in_B``."""
         Rt = self.rotation.T
-        return Transform(Rt, -Rt @ self.translation)
+        return Transform._built(Rt, -Rt @ self.translation)
 
     def __matmul__(self, other: Transform) -> Transform:
         """Compose: ``B_in_C @ A_in_B = A_in_C``."""
         if not isinstance(other, Transform):
             return NotImplemented
-        return Transform(self.rotation @ other.rotation, self.rotation @ other.translation + self.translation)
+        return Transform._built(self.rotation @ other.rotation, self.rotation @ other.translation + self.translation)
 
     def apply(self, points: ArrayLike) -> NDArray[np.float64]:
         """Map points (N, 3) or (3,) from frame A to frame B."""

@@ -77,17 +77,23 @@ class ViewpointShift:
 def _hermite(
     x: NDArray[np.float64], y: NDArray[np.float64], slopes: NDArray[np.float64], t: NDArray[np.float64]
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Cubic Hermite interpolation with tangents ``slopes`` (finite differences), linear beyond the ends."""
+    """Cubic Hermite interpolation with tangents ``slopes`` (finite differences), linear beyond the ends.
+
+    Each interval's cubic is evaluated in Horner form in ``u = t - x[i]`` (the projection's Newton solve
+    calls this five times a projection, the Hermite basis in ``s`` took 10 % of a measurement).
+    """
+    h = np.diff(x)
+    dy = np.diff(y) / h
+    c2 = (3 * dy - 2 * slopes[:-1] - slopes[1:]) / h
+    c3 = (slopes[:-1] + slopes[1:] - 2 * dy) / h**2
     tc = np.clip(t, x[0], x[-1])
     i = np.clip(np.searchsorted(x, tc) - 1, 0, x.size - 2)
-    h = x[i + 1] - x[i]
-    s = (tc - x[i]) / h
-    h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2
-    value = h00 * y[i] + h10 * h * slopes[i] + h01 * y[i + 1] + h11 * h * slopes[i + 1]
-    d00, d10, d01, d11 = 6 * s**2 - 6 * s, 3 * s**2 - 4 * s + 1, -6 * s**2 + 6 * s, 3 * s**2 - 2 * s
-    slope = (d00 * y[i] + d01 * y[i + 1]) / h + d10 * slopes[i] + d11 * slopes[i + 1]
+    u = tc - x[i]
+    a, b, c = c3[i], c2[i], slopes[:-1][i]
+    value = ((a * u + b) * u + c) * u + y[i]
+    slope = (3 * a * u + 2 * b) * u + c
     below, above = t < x[0], t > x[-1]
-    value = np.where(below, y[0] + slopes[0] * (t - x[0]), value)
-    value = np.where(above, y[-1] + slopes[-1] * (t - x[-1]), value)
-    slope = np.where(below, slopes[0], np.where(above, slopes[-1], slope))
+    if below.any() or above.any():
+        value = np.where(below, y[0] + slopes[0] * (t - x[0]), np.where(above, y[-1] + slopes[-1] * (t - x[-1]), value))
+        slope = np.where(below, slopes[0], np.where(above, slopes[-1], slope))
     return value, slope

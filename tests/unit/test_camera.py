@@ -289,3 +289,18 @@ def test_our_yaml_form_matches_the_kalibr_form(tmp_path):
 def test_ocamcalib_model_rejects_positive_pol0():
     with pytest.raises(ValueError, match="pol"):
         OCamCalib(100, 100, 1.0, None, np.array([5.0, 0.0]), np.array([1.0, 2.0]), 50.0, 50.0)
+
+
+def test_tabulated_viewpoint_shift_interpolates_with_its_derivative():
+    """The table's spline passes through its points, its slope is the derivative of its value, and it
+    continues linearly beyond the table's ends."""
+    angles = np.radians([10.0, 30.0, 45.0, 60.0, 80.0, 95.0])
+    offsets = np.array([-0.004, -0.002, 0.0, 0.003, 0.009, 0.014])
+    shift = ViewpointShift(angles=angles, offsets=offsets)
+    assert np.allclose(shift.offset(angles), offsets, atol=1e-15)
+    theta = np.random.default_rng(3).uniform(angles[0] - 0.3, angles[-1] + 0.3, 200)
+    step = 1e-6
+    numeric = (shift.offset(theta + step) - shift.offset(theta - step)) / (2 * step)
+    assert np.allclose(shift.derivative(theta), numeric, atol=1e-7)
+    beyond = angles[-1] + 0.2
+    assert shift.offset(beyond) == pytest.approx(offsets[-1] + 0.2 * shift.derivative(angles[-1]))

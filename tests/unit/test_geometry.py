@@ -88,3 +88,14 @@ def test_transform_rejects_non_rotation():
         Transform(np.diag([1.0, 2.0, 1.0]), np.zeros(3))
     with pytest.raises(ValueError, match="reflection"):
         Transform(np.diag([1.0, 1.0, -1.0]), np.zeros(3))
+
+
+def test_built_transforms_reject_non_finite_values():
+    """from_euler, inverse and composition skip the orthonormality check (their rotations are proper by
+    construction) but still refuse NaN, as the full check did."""
+    with pytest.raises(ValueError, match="finite"):
+        Transform.from_euler(x=float("nan"))
+    with pytest.raises(ValueError, match="finite"), np.errstate(invalid="ignore"):
+        Transform.from_euler(pitch=float("inf"))
+    with pytest.raises(ValueError, match="finite"):
+        Transform.from_euler(x=1.0) @ Transform(np.eye(3), np.array([np.nan, 0.0, 0.0]))
