@@ -73,13 +73,23 @@ class PixelRays:
     reach: float  # m: the largest distance of an origin from ``centre``
 
 
+_RAYS: dict[str, PixelRays] = {}  # by the camera model's pickled form; the last two cameras of a process
+
+
 def pixel_rays(camera: CameraModel) -> PixelRays:
-    """The camera's pixel-centre rays, computed once per distinct camera model in a process."""
-    return _pixel_rays(hashlib.sha1(pickle.dumps(camera)).hexdigest(), camera)
+    """The camera's pixel-centre rays, computed once per distinct camera model in a process.
+
+    Keyed by the model's content alone: an lru_cache on the model object itself (hashed by identity) missed
+    for every campaign pick, each of which loads its camera anew, and spent 2 s of a 5 s pick on rays."""
+    key = hashlib.sha1(pickle.dumps(camera)).hexdigest()
+    if key not in _RAYS:
+        if len(_RAYS) >= 2:
+            del _RAYS[next(iter(_RAYS))]
+        _RAYS[key] = _pixel_rays(camera)
+    return _RAYS[key]
 
 
-@functools.lru_cache(maxsize=2)
-def _pixel_rays(key: str, camera: CameraModel) -> PixelRays:
+def _pixel_rays(camera: CameraModel) -> PixelRays:
     vv, uu = np.mgrid[0 : camera.height, 0 : camera.width]
     centres = np.stack([uu.ravel(), vv.ravel()], 1).astype(float)
     inside = camera.valid_pixels(centres)

@@ -133,3 +133,17 @@ def test_tile_lists_hold_each_object_whose_rectangle_meets_the_tile():
                  if r is None or (r[0] < x0 + 32 and r[2] >= x0 and r[1] < y0 + 32 and r[3] >= y0)]  # fmt: skip
         assert list(objs[start[t] : start[t + 1]]) == meets
     assert len(start) - 1 == 22 * 16
+
+
+def test_pixel_rays_are_kept_per_camera_model_not_per_camera_object():
+    """Every campaign pick loads its camera anew: the rays of an equal model must come from the cache (an
+    lru_cache keyed by the model object recomputed them for every pick, 2 s of a 5 s pick)."""
+    from drivers.sim.fast_render import pixel_rays
+
+    def lens(k1: float) -> KannalaBrandt:
+        return dataclasses.replace(SMALL, k=(k1, 0.0, 0.0, 0.0))
+
+    first = pixel_rays(lens(0.01))
+    assert pixel_rays(lens(0.01)) is first
+    other = pixel_rays(lens(0.02))
+    assert other is not first and not np.array_equal(other.directions, first.directions)
