@@ -17,7 +17,9 @@ sent, feedback read) is reported to a :class:`agf.recorder.Recorder`: the pick's
 
 When the forks hide the pallet from the camera (a :class:`agf.errors.PalletHiddenError`), the
 controller does not give up: VIEWING moves the forks, lift only, level with the pallet's pockets
-where the camera sees them past the tines, and the pick acquires and measures again.
+where the camera sees them past the tines, and the pick acquires and measures again. A measurement
+refused for another reason gets the same move (``unclear``) when its search roughly placed the pallet
+far enough above or below the forks that the view from level differs (:meth:`Planner.view_helps`).
 
 Time comes from an injected :class:`agf.clock.Clock`: motion timeouts and the stream of setpoints
 read it (simulated time in the simulated world, where the vision takes none), and the vision's
@@ -37,7 +39,7 @@ from statemachine import State, StateMachine
 
 from agf.axis import Axis, AxisState
 from agf.clock import Clock, WallClock
-from agf.errors import AgfError, DriveFault, PalletHiddenError
+from agf.errors import AgfError, DriveFault, MeasurementError, PalletHiddenError
 from agf.frames import Frame, FrameLost, FrameSource
 from agf.geometry import Transform
 from agf.measurement import PalletMeasurement
@@ -66,6 +68,7 @@ class PickMachine(StateMachine):
     acquired = acquiring.to(measuring)
     measured = measuring.to(planning)
     hidden = measuring.to(viewing)
+    unclear = measuring.to(viewing)
     viewed = viewing.to(acquiring)
     planned = planning.to(aligning)
     aligned = aligning.to(verifying)
@@ -121,6 +124,10 @@ class Planner(Protocol):
     def view_motion(self, axes_now: Mapping[str, float], pallet_in_fork: Transform) -> Motion:
         """A move that lets the camera see the pallet (roughly at ``pallet_in_fork``) past the forks,
         clear of it; :class:`AgfError` when there is none."""
+
+    def view_helps(self, axes_now: Mapping[str, float], pallet_in_fork: Transform) -> bool:
+        """Whether a measurement refused with the pallet roughly at ``pallet_in_fork`` may succeed after
+        :meth:`view_motion`."""
 
     def verify(self, measurement: PalletMeasurement, plan: Any) -> str | None:
         """None when the re-measured pallet is where the aligned forks expect it, else why not."""
@@ -239,7 +246,7 @@ class PickController:
             "inserting": self._insert,
         }
         frame: Frame | None = None
-        hidden: PalletHiddenError | None = None
+        view_of: Transform | None = None  # the rough pose a viewing move is planned for
         replans = 0
         while (state := self._state()) not in ("done", "fault"):
             start, wall_start = self.clock.monotonic(), time.perf_counter()
@@ -251,9 +258,9 @@ class PickController:
                     frame = self._read_frame()
                     event = "acquired"
                 elif state == "measuring":
-                    hidden, event = self._measure_first(result, frame)
+                    view_of, event = self._measure_first(result, frame)
                 elif state == "viewing":
-                    motion = self.planner.view_motion(self._positions(), hidden.pallet_in_fork)
+                    motion = self.planner.view_motion(self._positions(), view_of)
                     self._follow(motion, state, result)
                     event = "viewed"
                 else:
@@ -302,17 +309,21 @@ class PickController:
         self.recorder.measurement(state, frame, measurement)
         return measurement
 
-    def _measure_first(self, result: PickResult, frame: Frame | None) -> tuple[PalletHiddenError | None, str]:
-        """The first measurement of a pick (again after a viewing move); when the forks hide the pallet,
-        the reason for a viewing move, as long as the pick has one left."""
+    def _measure_first(self, result: PickResult, frame: Frame | None) -> tuple[Transform | None, str]:
+        """The first measurement of a pick (again after a viewing move). When the forks hide the pallet, or
+        the measurement is refused where a move level with the pallet's rough pose would change the view
+        (:meth:`Planner.view_helps`), the pose to view it from, as long as the pick has a viewing move left."""
         prior = result.measurements[-1] if result.measurements else None
         try:
             result.measurements.append(self._measure("measuring", frame, prior))
-        except PalletHiddenError as exc:
-            if len(result.views) >= self.config.views:
+        except MeasurementError as exc:
+            hidden = isinstance(exc, PalletHiddenError)
+            if len(result.views) >= self.config.views or exc.pallet_in_fork is None or not (
+                hidden or self.planner.view_helps(self._positions(), exc.pallet_in_fork)
+            ):
                 raise
             result.views.append(str(exc))
-            return exc, "hidden"
+            return exc.pallet_in_fork, "hidden" if hidden else "unclear"
         return None, "measured"
 
     def _timed(self, fn: Callable[..., Any], state: str, *args: Any) -> Any:

@@ -29,12 +29,15 @@ class MeasurementError(AgfError):
     """The vision could not produce a trustworthy measurement; the message says why.
 
     ``found`` optionally carries what the vision saw before it refused (candidate pose, edge evidence),
-    so that a refusal can be drawn and explained; it is never a measurement.
+    so that a refusal can be drawn and explained; it is never a measurement. ``pallet_in_fork``, when
+    given, is where the refused search roughly put the pallet (frame P in fork frame F): never good
+    enough to pick from, but enough to choose where to look from next.
     """
 
-    def __init__(self, message: str, found: object | None = None) -> None:
+    def __init__(self, message: str, found: object | None = None, pallet_in_fork: Transform | None = None) -> None:
         super().__init__(message)
         self.found = found
+        self.pallet_in_fork = pallet_in_fork
 
 
 class PalletHiddenError(MeasurementError):
@@ -46,8 +49,7 @@ class PalletHiddenError(MeasurementError):
     """
 
     def __init__(self, message: str, pallet_in_fork: Transform, found: object | None = None) -> None:
-        super().__init__(message, found)
-        self.pallet_in_fork = pallet_in_fork
+        super().__init__(message, found, pallet_in_fork)
 
 
 class NotAvailableError(AgfError):

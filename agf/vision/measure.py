@@ -305,8 +305,9 @@ def _refusal(
     failures: list[MeasurementError], volume: SearchVolume, similarities: Sequence[str], found: Findings
 ) -> MeasurementError:
     """One error for the failed searches, carrying what the vision ``found``: the first one's reason,
-    the others' after it. When the forks hid the pallet in any of them, a :class:`PalletHiddenError`
-    with that search's rough pose, as moving the forks out of the view may then give a measurement."""
+    the others' after it, and the first search's pose as the rough one. When the forks hid the pallet in
+    any of them, a :class:`PalletHiddenError` with that search's rough pose, as moving the forks out of
+    the view may then give a measurement."""
     reasons = [str(f) for f in failures]
     others = sorted(set(reasons[1:]) - {reasons[0]})
     also = (f" (with the pose searched at pitch +-{math.degrees(volume.pitch_max / 2):.1f} deg and by "
@@ -314,7 +315,8 @@ def _refusal(
     message = reasons[0] + (also + ": " + "; ".join(others) + ")" if others else "")
     hidden = next((f for f in failures if isinstance(f, PalletHiddenError)), None)
     if hidden is None:
-        return MeasurementError(message, found=found)
+        rough = found.pose.pallet_in_fork if found.pose is not None else None
+        return MeasurementError(message, found=found, pallet_in_fork=rough)
     return PalletHiddenError(message, hidden.pallet_in_fork, found=found)
 
 

@@ -165,6 +165,26 @@ def test_forks_hiding_the_pallet_move_to_a_viewing_pose_and_the_pick_inserts():
     assert all(abs(row["actual"]["reach"] - start["reach"]) < 1e-4 for row in viewing)
 
 
+def test_a_refused_measurement_far_above_the_forks_is_measured_again_from_level_and_the_pick_inserts():
+    """Campaign pick 16 of seed 4242: an unloaded pallet 158 mm above the forks, refused from there ("a second
+    line runs beside the unloaded edges", the forks hiding nothing); the search's rough pose lifts the forks
+    level with it, and from there it is measured and picked. (Should the vision one day measure it from
+    below, this test needs another refused pick: it tests the viewing move, not that refusal.)"""
+    from drivers.sim.world import campaign_scene
+
+    scene = campaign_scene(load_scene(repo_path("configs/scenes/pick.yaml")), 4242, 16)
+    with SimulatedWorld(CONFIG, scene) as world:
+        start = world.positions()
+        result = world.controller().run()
+        summary = pick_summary(result, world)
+    assert result.ok, result.reason
+    assert len(result.views) == 1 and "the forks hide" not in result.views[0], result.views
+    assert summary["viewing_moves"] == 1 and not summary["collision"]
+    viewing = [row for row in result.log if row["state"] == "viewing"]
+    assert viewing[-1]["actual"]["lift"] - start["lift"] == pytest.approx(0.158, abs=0.03)
+    assert all(abs(row["actual"]["reach"] - start["reach"]) < 1e-4 for row in viewing)
+
+
 def test_only_runs_one_pick_of_a_campaign_as_the_campaign_draws_it(monkeypatch, tmp_path):
     drawn: list = []
 

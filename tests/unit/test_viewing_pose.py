@@ -54,3 +54,18 @@ def test_a_viewing_pose_beyond_the_lift_limits_is_refused():
     axes = {"lift": 0.2, "reach": 0.15, "tilt": 0.0}
     with pytest.raises(AgfError, match=r"lift that would show it \(-100 mm\) is outside"):
         view(Transform.from_euler(0.3, 0.0, -0.3, 0.0, 0.0, 0.0), axes)
+
+
+def test_a_refused_measurement_is_worth_a_view_only_when_the_lift_would_move_far_enough():
+    """A refusal for another reason than hidden pockets: a viewing move when level differs by at least
+    insertion.view_min_lift (100 mm), never when the move is impossible (too close, out of limits)."""
+    from agf.planner import PickPlanner, PickSettings
+
+    planner = PickPlanner(MAST, FORKS, PALLET, LIMITS, PickSettings(view_min_lift=0.1))
+    axes = {"lift": 0.6, "reach": 0.15, "tilt": 0.0}
+    assert planner.view_helps(axes, Transform.from_euler(0.3, 0.0, -0.25, 0.0, 0.0, 0.0))
+    assert planner.view_helps(axes, Transform.from_euler(0.3, 0.0, 0.16, 0.0, 0.0, 0.0))
+    assert not planner.view_helps(axes, Transform.from_euler(0.3, 0.0, 0.06, 0.0, 0.0, 0.0))  # nearly level
+    assert not planner.view_helps(axes, Transform.from_euler(0.06, 0.0, -0.3, 0.0, 0.0, 0.0))  # tips too close
+    low = {"lift": 0.2, "reach": 0.15, "tilt": 0.0}
+    assert not planner.view_helps(low, Transform.from_euler(0.3, 0.0, -0.3, 0.0, 0.0, 0.0))  # below the lift's 0
