@@ -49,11 +49,7 @@ class PitchConfig:
     rival_gap: float = 12.0  # panorama pixels: a parallel line this close to an edge makes it ambiguous ...
     rival_pitch: float = math.radians(0.03)  # ... unless the pitch with it instead is within this: a line
     # parallel in 3D (the deck board's lower edge, a bed seam, an upright beside a level load) gives the
-    # same direction, hence the same pitch; only where the edge lies stays in doubt. Up to
-    # ``rival_pitch_max`` apart the pitch is the middle of the pairings' and half their spread counts in
-    # its sigma: whichever line is the edge, the middle is within 0.05 deg (random looks: 1.60 and 1.65
-    # deg for a true 1.65, refused as ambiguous)
-    rival_pitch_max: float = math.radians(0.1)
+    # same direction, hence the same pitch; only where the edge lies stays in doubt
     anchor_tolerance: float = 5.0  # panorama pixels: an edge this close to the point the pose pins ...
     anchor_gap: float = 3.0  # ... beats a rival that misses that point by this many pixels more
     # The lines on the load's face (carton joints, tape, label sides) are parallel to its edges: their
@@ -546,14 +542,8 @@ def _evidence(
         return found(False, math.nan, nan, note=f"the {hypothesis} edges run {across:.1f} deg across the pallet's "
                      f"axis (at most {math.degrees(config.max_across):.1f}): they are not the pallet's")
     pitch, spread = pitches[0], max(abs(p - pitches[0]) for p in pitches)
-    if spread > config.rival_pitch_max:
+    if spread > config.rival_pitch:
         return found(False, math.nan, nan, ambiguous=True, candidates=tuple(pitches))
-    if spread > config.rival_pitch:  # a line beside the edge, nearly parallel: the pitch lies between them
-        pitch = (max(pitches) + min(pitches)) / 2
-        spread = max(pitches) - min(pitches)
-        yaw, _, roll = pallet_in_fork.euler
-        axis_f = Transform.from_euler(0.0, 0.0, 0.0, roll, pitch, yaw).rotation[:, axis_index]
-        direction = camera_in_fork.inverse().apply_direction(axis_f)
     sigma = math.hypot(*_pitch_spread_of_tilts(lines, tilts, predicted, camera_in_fork, pallet_in_fork, hypothesis),
                        spread / 2)
     placed = all(rival is None for rival in rivals)
