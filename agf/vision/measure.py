@@ -173,18 +173,15 @@ def measure_pallet(
 
     def check_pitch_stable(pose: PoseEstimate, chosen: PitchEvidence) -> None:
         """Refuse unless the chosen hypothesis gives the same pitch when its edges are searched from
-        :attr:`MeasureConfig.pitch_probe` either side: the pitch must not depend on where the search began.
-        Every pairing a probe finds counts: one whose edges have a line beside them (ambiguous) passes
-        when all its pairings give the pitch again."""
+        :attr:`MeasureConfig.pitch_probe` either side: the pitch must not depend on where the search began."""
         t = time.perf_counter()
         edges_of = unloaded_evidence if chosen.hypothesis == "unloaded" else loaded_evidence
         yaw, _, roll = pose.pallet_in_fork.euler
         for offset in (-config.pitch_probe, config.pitch_probe):
             probe = Transform.from_euler(*pose.pallet_in_fork.translation, roll, chosen.pitch + offset, yaw)
             again = edges_of(gray, camera, camera_in_fork, pallet, probe, config.pitch)
-            pitches = [again.pitch] if again.valid else list(again.candidates) if again.ambiguous else []
-            if not (pitches and all(abs(p - chosen.pitch) <= config.pitch_probe_tolerance for p in pitches)):
-                found = ", ".join(f"{math.degrees(p):.2f} deg" for p in pitches) or "no pair of edges"
+            if not again.valid or abs(again.pitch - chosen.pitch) > config.pitch_probe_tolerance:
+                found = f"{math.degrees(again.pitch):.2f} deg" if again.valid else "no pair of edges"
                 raise MeasurementError(
                     f"the {chosen.hypothesis} edges do not settle on one pitch: {math.degrees(chosen.pitch):.2f} deg "
                     f"measured, {found} when searched from {math.degrees(offset):+.1f} deg beside it; "
