@@ -30,6 +30,8 @@ class ViewpointShift:
     poly: NDArray[np.float64] | None = None
     reference: float = REFERENCE_ANGLE
     _slopes: NDArray[np.float64] | None = field(default=None, init=False, repr=False)  # the table's tangents
+    # each interval's quadratic and cubic coefficients, made once: the spline is evaluated five times a projection
+    _cubic: tuple[NDArray[np.float64], NDArray[np.float64]] | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:
         if (self.poly is None) == (self.angles is None):
@@ -54,6 +56,7 @@ class ViewpointShift:
         object.__setattr__(self, "angles", angles)
         object.__setattr__(self, "offsets", offsets)
         object.__setattr__(self, "_slopes", np.gradient(offsets, angles))
+        object.__setattr__(self, "_cubic", _hermite_cubic(angles, offsets, self._slopes))
 
     def offset(self, theta: ArrayLike) -> NDArray[np.float64]:
         """Pupil offset along the optical axis (m, forward positive) at incidence ``theta`` (rad)."""
@@ -71,21 +74,33 @@ class ViewpointShift:
             value = np.polynomial.polynomial.polyval(t, self.poly)
             slope = np.polynomial.polynomial.polyval(t, np.polynomial.polynomial.polyder(self.poly))
             return value, slope
-        return _hermite(self.angles, self.offsets, self._slopes, theta)
+        return _hermite(self.angles, self.offsets, self._slopes, self._cubic, theta)
+
+
+def _hermite_cubic(
+    x: NDArray[np.float64], y: NDArray[np.float64], slopes: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The quadratic and cubic coefficients (K - 1,) of each interval's cubic Hermite polynomial in
+    ``u = t - x[i]`` through the points (``x``, ``y``) (K,) with tangents ``slopes`` (K,)."""
+    h = np.diff(x)
+    dy = np.diff(y) / h
+    return (3 * dy - 2 * slopes[:-1] - slopes[1:]) / h, (slopes[:-1] + slopes[1:] - 2 * dy) / h**2
 
 
 def _hermite(
-    x: NDArray[np.float64], y: NDArray[np.float64], slopes: NDArray[np.float64], t: NDArray[np.float64]
+    x: NDArray[np.float64],
+    y: NDArray[np.float64],
+    slopes: NDArray[np.float64],
+    cubic: tuple[NDArray[np.float64], NDArray[np.float64]],
+    t: NDArray[np.float64],
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Cubic Hermite interpolation with tangents ``slopes`` (finite differences), linear beyond the ends.
 
-    Each interval's cubic is evaluated in Horner form in ``u = t - x[i]`` (the projection's Newton solve
-    calls this five times a projection, the Hermite basis in ``s`` took 10 % of a measurement).
+    Each interval's cubic (its coefficients ``cubic`` from :func:`_hermite_cubic`) is evaluated in Horner
+    form in ``u = t - x[i]`` (the projection's Newton solve calls this five times a projection, the
+    Hermite basis in ``s`` took 10 % of a measurement).
     """
-    h = np.diff(x)
-    dy = np.diff(y) / h
-    c2 = (3 * dy - 2 * slopes[:-1] - slopes[1:]) / h
-    c3 = (slopes[:-1] + slopes[1:] - 2 * dy) / h**2
+    c2, c3 = cubic
     tc = np.clip(t, x[0], x[-1])
     i = np.clip(np.searchsorted(x, tc) - 1, 0, x.size - 2)
     u = tc - x[i]
