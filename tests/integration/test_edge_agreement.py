@@ -16,7 +16,7 @@ from agf.config import load_config
 from agf.errors import MeasurementError
 from agf.geometry import Transform, transform_from_dict
 from agf.pallets import load_pallets
-from agf.paths import DEFAULT_CONFIG
+from agf.paths import DEFAULT_CONFIG, repo_path
 from agf.scene import load_scene
 from agf.vision.edge_agreement import check_face_edges, face_edge_agreement
 from agf.vision.face_model import face_model_from_pallet
@@ -91,25 +91,19 @@ def test_regression_foreign_unloaded_flat_face_too_far_along_the_line_of_sight_i
 def test_regression_campaign_loaded_pallet_45_mm_along_the_line_of_sight_is_refused():
     """Seen steeply from 1.2 m above, a loaded pallet's face was fitted 45 mm too far along the line of sight
     (x +29, z -35 mm) and accepted: its pocket tops and bottoms lay on lines, only its upright edges did not
-    (first frame of pick 29 of campaign seed 7)."""
+    (first frame of pick 29 of campaign seed 7; the whole measurement is checked by its scene file in
+    tests/data/scenes/fixed-wrong-accepts)."""
     from drivers.sim.fast_render import render_fast
     from drivers.sim.world import campaign_scene
 
-    scene = campaign_scene(load_scene("configs/scenes/pick.yaml"), 7, 29)
+    scene = campaign_scene(load_scene(repo_path("configs/scenes/pick.yaml")), 7, 29)
     image = cv2.cvtColor(render_fast(scene)[0], cv2.COLOR_BGR2GRAY)
     camera = load_camera(CONFIG.vision.camera)
-    pallet = CATALOGUE[scene.pallet.type]
-    face = face_model_from_pallet(pallet)
+    face = face_model_from_pallet(CATALOGUE[scene.pallet.type])
     check_face_edges(image, camera, scene.camera_in_fork, scene.pallet.in_fork, face, CONFIG.forks)
     accepted = Transform.from_euler(0.2157, -0.0013, -0.2021, 0.0, math.radians(3.33), math.radians(0.30))
     with pytest.raises(MeasurementError, match="upright edges"):
         check_face_edges(image, camera, scene.camera_in_fork, accepted, face, CONFIG.forks)
-    try:
-        detail = measure_pallet(image, camera, scene.camera_in_fork, pallet, CONFIG.vision.search, forks=CONFIG.forks)
-    except MeasurementError:
-        return
-    got, truth = detail.measurement.pallet_in_fork.to_dict(), scene.pallet.in_fork.to_dict()
-    assert abs(got["z_mm"] - truth["z_mm"]) <= 5 and abs(got["x_mm"] - truth["x_mm"]) <= 10
 
 
 def test_pose_on_a_blank_image_is_refused(rendered):

@@ -1,4 +1,5 @@
-"""Wrong accepts found on the project's randomised renders (agf bench accuracy.randomised).
+"""Wrong accepts found on the project's randomised renders (agf bench accuracy.randomised, and the first frames
+of campaign picks, accuracy.campaign).
 
 Each scene in ``fixed-wrong-accepts/`` was once accepted outside the bounds and is now refused or measured
 within them; the scene files say where each came from and what fixed it. A wrong accept found and not yet
@@ -48,3 +49,15 @@ def test_randomised_scene_is_refused_or_within_bounds(path):
         return
     errors = pose_errors(detail.measurement.pallet_in_fork, scene.pallet.in_fork)
     assert within_bounds(errors) and detail.measurement.loaded == scene.loaded, errors
+
+
+def test_bench_campaign_case_measures_the_first_frames_of_campaign_picks():
+    """``agf bench --quick --only campaign``: the first frames of picks 0-3 of campaign seed 7, each measured
+    or refused with a reason, none accepted outside the bounds."""
+    from agf.bench import run_bench
+
+    figures = run_bench(["drivers.sim.vision_bench"], quick=True, only="campaign")["accuracy"]["campaign"]
+    assert figures["scenes"] == 4
+    assert figures["wrong_accepts"] == 0, figures["wrong"]
+    assert figures["within_bounds"] + len(figures["refused"]) == 4
+    assert all(reason.startswith("seed-7/pick-") for reason in figures["refused"])
