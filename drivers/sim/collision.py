@@ -2,10 +2,13 @@
 
 The tines are boxes in the fork frame; the pallet is the union of its parts (deck, bottom band,
 blocks) as boxes in frame P. Points sampled densely over each tine's surface are tested against each
-part: inside any part is a collision; otherwise the smallest distance is the clearance.
+part: inside any part is a collision; otherwise the smallest distance is the clearance. It is taken every
+control cycle of a simulated pick, so it skips the points that cannot be the nearest (:func:`clearance`).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -15,6 +18,7 @@ from agf.geometry import Transform
 from agf.pallets import PalletType
 
 Array = NDArray[np.float64]
+CHUNK = 128  # tine points per chunk of :func:`clearance` (neighbours: the samples run along the tine)
 
 
 def pallet_parts(pallet: PalletType) -> Array:
@@ -29,8 +33,41 @@ def pallet_parts(pallet: PalletType) -> Array:
     return np.array(parts, dtype=float)
 
 
-def tine_surface_points(forks: ForkGeometry, spacing: float = 0.01) -> Array:
-    """Points (N, 3, fork frame) on the surfaces of both tines (tips at x = 0, heels at x = -length)."""
+@dataclass(frozen=True)
+class TineSurface:
+    """Points sampled over both tines' surfaces (fork frame), in chunks of neighbours for :func:`clearance`.
+
+    Attributes
+    ----------
+    chunks : (C, M, 3) array
+        The points (m), M to a chunk; a shorter chunk is padded with copies of its last point.
+    centres : (C, 3) array
+        Each chunk's centre (m).
+    radii : (C,) array
+        How far each chunk's points lie from its centre at most (m).
+    """
+
+    chunks: Array
+    centres: Array
+    radii: Array
+
+    @classmethod
+    def of(cls, pieces: list[Array], chunk: int = CHUNK) -> TineSurface:
+        """The surface of ``pieces`` (each (N, 3), consecutive points neighbours), each cut in chunks of up to
+        ``chunk`` consecutive points."""
+        chunks = [_padded(piece[i : i + chunk], chunk) for piece in pieces for i in range(0, len(piece), chunk)]
+        stacked = np.array(chunks)
+        centres = stacked.mean(axis=1)
+        return cls(stacked, centres, np.linalg.norm(stacked - centres[:, None], axis=2).max(axis=1))
+
+
+def _padded(points: Array, count: int) -> Array:
+    return np.concatenate([points, np.repeat(points[-1:], count - len(points), axis=0)])
+
+
+def tine_surface(forks: ForkGeometry, spacing: float = 0.01) -> TineSurface:
+    """Points on the surfaces of both tines (tips at x = 0, heels at x = -length), ``spacing`` (m) apart
+    along them; consecutive points are neighbours (they run along the tine)."""
     x = np.arange(-forks.length, 0.0 + 1e-9, spacing)
     points = []
     for side in (-1.0, 1.0):
@@ -41,15 +78,31 @@ def tine_surface_points(forks: ForkGeometry, spacing: float = 0.01) -> Array:
         grid_side = np.array([[xi, y, zi] for xi in x for y in (ys[0], ys[-1]) for zi in zs])
         tip = np.array([[0.0, yi, zi] for yi in ys for zi in zs])
         points += [grid_top, grid_side, tip]
-    return np.concatenate(points)
+    return TineSurface.of(points)
 
 
-def clearance(points_f: Array, fork_in_pallet: Transform, parts: Array) -> float:
-    """Signed clearance (m) between tine points (N, 3, fork frame) and pallet parts (K, 2, 3, frame P,
-    :func:`pallet_parts`): negative means the tines cut a part, by the deepest point's depth."""
-    points = fork_in_pallet.apply(points_f).T[:, None, :]  # (3, 1, N): the long axis innermost, for speed
+def clearance(tines: TineSurface, fork_in_pallet: Transform, parts: Array) -> float:
+    """Signed clearance (m) between the tines (fork frame) and pallet parts (K, 2, 3, frame P,
+    :func:`pallet_parts`): negative means the tines cut a part, by the deepest point's depth.
+
+    Exact over the points, and cheap when the forks are far: the chunks are taken nearest first, and a chunk
+    is skipped when a lower bound on its points' values cannot beat the smallest value found. The bound holds
+    because a signed distance changes no faster than the point moves: a point within r of its chunk's centre
+    has a value of at least the centre's minus r."""
+    bounds = signed_distances(fork_in_pallet.apply(tines.centres), parts) - tines.radii
+    best = np.inf
+    for i in np.argsort(bounds):
+        if bounds[i] >= best:
+            break
+        best = min(best, float(signed_distances(fork_in_pallet.apply(tines.chunks[i]), parts).min()))
+    return best
+
+
+def signed_distances(points: Array, parts: Array) -> Array:
+    """Signed distance (N,) from each point (N, 3, frame P) to the union of the parts (K, 2, 3): the
+    distance to the nearest part outside them, minus the depth to the nearest side inside one."""
+    points = points.T[:, None, :]  # (3, 1, N): the long axis innermost, for speed
     below, above = parts[:, 0].T[:, :, None] - points, points - parts[:, 1].T[:, :, None]  # (3, K, N)
     outside = np.maximum(np.maximum(below, above), 0.0)
     depth = -np.maximum(below, above).max(axis=0)  # > 0 inside the part: the distance to its nearest side
-    signed = np.where(depth > 0, -depth, np.sqrt((outside * outside).sum(axis=0)))
-    return float(signed.min())
+    return np.where(depth > 0, -depth, np.sqrt((outside * outside).sum(axis=0))).min(axis=0)

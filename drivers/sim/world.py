@@ -45,7 +45,7 @@ from agf.viz import fork_path_side_view, pick_plots
 from drivers.can_tap import CanTap
 from drivers.cia402_axis import axes_from_config
 from drivers.sim.campaign import make_backend, run_campaign
-from drivers.sim.collision import clearance, pallet_parts, tine_surface_points
+from drivers.sim.collision import clearance, pallet_parts, tine_surface
 from drivers.sim.drive import start_simulated_drives
 from drivers.sim.fast_render import render_fast
 
@@ -105,7 +105,7 @@ class SimulatedWorld:
         self.refusal: str | None = None  # why the last measurement was refused, None when it was not
         self.min_clearance = math.inf
         self.inside = False
-        self._tines = tine_surface_points(config.forks)
+        self._tines = tine_surface(config.forks)
         y, ft, fl = config.forks.spacing / 2, config.forks.thickness / 2, config.forks.length
         self._outline = np.array([[0.0, y, ft], [0.0, y, -ft], [-fl, y, -ft], [-fl, y, ft]])  # left tine, side
         self.outlines: list[np.ndarray] = []  # per cycle, the left tine's side outline in frame P

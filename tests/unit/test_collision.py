@@ -11,11 +11,11 @@ from agf.config import ForkGeometry
 from agf.geometry import Transform
 from agf.pallets import load_pallets
 from agf.paths import repo_path
-from drivers.sim.collision import clearance, pallet_parts, tine_surface_points
+from drivers.sim.collision import clearance, pallet_parts, signed_distances, tine_surface
 
 FORKS = ForkGeometry()  # 36 mm thick, 120 mm wide, 600 mm apart
 PALLET = load_pallets(repo_path("configs/pallets.yaml"))["jis-t11"]  # 90 mm pockets, blocks 0.05..0.45 m
-TINES = tine_surface_points(FORKS)
+TINES = tine_surface(FORKS)
 PARTS = pallet_parts(PALLET)
 GAP = PALLET.pocket_height / 2 - FORKS.thickness / 2  # above and below a centred tine: 27 mm
 
@@ -45,3 +45,21 @@ def test_clearance_does_not_depend_on_the_order_of_the_parts():
     pose = Transform.from_euler(0.4, 0.01, 0.012, pitch=math.radians(1.0), yaw=math.radians(0.5))
     rng = np.random.default_rng(5)
     assert clearance(TINES, pose, PARTS[rng.permutation(len(PARTS))]) == clearance(TINES, pose, PARTS)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_clearance_equals_the_smallest_signed_distance_over_every_point(seed):
+    """The chunks skipped by their lower bound never hold the nearest point: in front of, at and inside the
+    pockets, turned and shifted, the result is that of all points."""
+    rng = np.random.default_rng(seed)
+    points = TINES.chunks.reshape(-1, 3)
+    for _ in range(200):
+        pose = Transform.from_euler(rng.uniform(-0.6, 1.2), rng.uniform(-0.1, 0.1), rng.uniform(-0.15, 0.25),
+                                    0.0, rng.uniform(-0.1, 0.1), rng.uniform(-0.1, 0.1))
+        assert clearance(TINES, pose, PARTS) == float(signed_distances(pose.apply(points), PARTS).min())
+
+
+def test_tine_surface_chunks_hold_every_point_within_their_radius():
+    offsets = np.linalg.norm(TINES.chunks - TINES.centres[:, None], axis=2)
+    assert np.all(offsets <= TINES.radii[:, None] + 1e-12)
+    assert TINES.radii.max() < 0.15  # neighbours: a chunk spans a short stretch of one tine, not two
