@@ -78,7 +78,8 @@ class OCamCalib(CameraModel):
     def radius_from_elevation(self, elevation: Array) -> tuple[Array, np.ndarray]:
         """Image radius (px, before the affine part) of rays at OCamCalib ``elevation`` (rad).
 
-        ``invpol`` gives the first guess; Newton on ``atan2(pol(r), r) = elevation`` makes it exact.
+        ``invpol`` gives the first guess; Newton on ``atan2(pol(r), r) = elevation`` makes it exact (two or
+        three steps from that guess; at most eight).
         """
         dpol = P.polyder(self.pol)
         # Rays far outside the field of view make Newton diverge; they are flagged invalid below.
@@ -87,6 +88,8 @@ class OCamCalib(CameraModel):
             for _ in range(8):
                 z = P.polyval(r, self.pol)
                 g = np.arctan2(z, r) - elevation
+                if not np.any(np.abs(g) > 1e-13):  # converged (NaN rays, outside the model, stay invalid)
+                    break
                 dg = (P.polyval(r, dpol) * r - z) / (r**2 + z**2)
                 r = r - g / dg
             ok = np.isfinite(r) & (r >= 0) & (np.abs(np.arctan2(P.polyval(r, self.pol), r) - elevation) < 1e-9)

@@ -210,6 +210,21 @@ class SimDrive:
         """Send an EMCY with error code ``code`` and stay in the present state (a warning, e.g. 0x4210)."""
         self.node.emcy.send(code, 0x01, b"\0" * 5)
 
+    def place(self, counts: float) -> None:
+        """Put the motor at rest at ``counts``, as if it had been moved there before the bus came up (a
+        simulated truck that arrives with its forks raised). Only while the drive is not enabled.
+
+        Raises
+        ------
+        RuntimeError
+            When the drive is enabled: a motor that is holding a position does not jump.
+        """
+        with self._lock:
+            if self.state in POWERED:
+                raise RuntimeError(f"node {self.node.id}: cannot place the motor of a drive that is {self.state}")
+            self.position = self._setpoint = float(counts)
+            self.velocity = 0.0
+
     def reboot(self) -> None:
         """Reset of the drive's electronics: the motor stops where it is (brake), the object dictionary
         returns to its defaults (PDO mapping, heartbeat, mode, limits), boot-up message, PRE-OPERATIONAL."""

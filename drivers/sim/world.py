@@ -95,7 +95,7 @@ class SimulatedWorld:
         self.pick_settings = pick_settings_from_mapping(config.sections.get("insertion"), f"{config.source}: insertion")
         self.network, self.axes = axes_from_config(
             config.sections["drives"], config.sections["bus"], f"{config.source}:", base_dir=config.source.parent,
-            start_drives=drive_starter(config),
+            start_drives=_placed(drive_starter(config), START),
             bus_wrapper=bus_wrapper,
             clock=self.clock,
         )
@@ -216,6 +216,23 @@ def drive_starter(config: Config) -> Any:
     """What ``plugins.drives`` names to start the drives with, or None (a truck's drives run on their own)."""
     spec = config.plugins.get("drives")
     return None if spec is None else load_object(spec, key=f"{config.source}: plugins.drives")
+
+
+def _placed(start_drives: Any, positions: dict[str, float]) -> Any:
+    """``start_drives`` whose simulated drives start with their axes at ``positions`` (m, rad; see
+    :meth:`drivers.sim.drive.SimDrive.place`): the truck arrives with its forks there, and the world's move
+    to the start pose has nothing left to do (it was 0.6 s of wall time a pick). None stays None."""
+    if start_drives is None:
+        return None
+
+    def start(drives: Sequence[Any], *args: Any, **kwargs: Any) -> list[Any]:
+        started = start_drives(drives, *args, **kwargs)
+        for settings, drive in zip(drives, started, strict=True):
+            if hasattr(drive, "place"):
+                drive.place(positions.get(settings.name, 0.0) * settings.counts_per_unit)
+        return started
+
+    return start
 
 
 def scene_summary(scene: Scene) -> dict[str, Any]:

@@ -148,6 +148,17 @@ def test_on_simulated_time_the_vision_takes_no_motion_time(both_clocks):
     assert simulated["summary"]["cycle_s"] > sum(b.durations.values())  # the vision's compute time counted
 
 
+def test_a_simulated_world_starts_with_its_axes_at_the_start_pose_to_the_count():
+    """The simulated truck arrives with its forks at the start pose (its drives are placed there): no setup
+    move, which ended within 0.1 mm of it and took 0.6 s of wall time a pick."""
+    from drivers.sim.world import START
+
+    with SimulatedWorld(CONFIG, SCENE) as world:
+        positions = world.positions()
+        counts = {name: axis.drive.counts_per_unit for name, axis in world.axes.items()}
+    assert all(abs(positions[name] - START.get(name, 0.0)) * counts[name] < 1 for name in positions), positions
+
+
 def test_forks_hiding_the_pallet_move_to_a_viewing_pose_and_the_pick_inserts():
     scene = load_scene(HIDDEN)
     with SimulatedWorld(CONFIG, scene) as world:
@@ -209,8 +220,10 @@ def test_regression_campaign_pick_22_of_seed_7_accepts_no_measurement_outside_bo
 
 
 # The picks of `agf simulate --random 200 --seed 7` that accepted a measurement outside the bounds (all in
-# pitch, 0.10-0.39 deg; 2026-11-25). Open wrong accepts of issue 17: each must pass when it is fixed.
-OPEN_CAMPAIGN_WRONG_ACCEPTS = (38, 42, 49, 55, 120, 134, 139, 163, 173)
+# pitch, 0.10-0.39 deg; 2026-11-25). Open wrong accepts of issue 17: each must pass when it is fixed. Picks 134,
+# 163 and 173 left the list unfixed: since the simulated drives start at the start pose instead of moving there
+# (within 0.1 mm), their frames differ by that much and their measurements happen to stay within the bounds.
+OPEN_CAMPAIGN_WRONG_ACCEPTS = (38, 42, 49, 55, 120, 139)
 
 
 @pytest.mark.xfail(strict=True, reason="accepted a measurement outside the bounds: open, see issue 17")

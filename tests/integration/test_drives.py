@@ -123,6 +123,20 @@ def test_csp_enable_move_disable(rig: Rig) -> None:
     assert rig.faults == []
 
 
+def test_a_placed_motor_is_where_the_master_reads_it_and_cannot_be_placed_once_enabled(rig: Rig) -> None:
+    rig.axis.enable()
+    with pytest.raises(RuntimeError, match="cannot place"):
+        rig.drive.place(0.2 * SCALE)
+    rig.axis.disable()
+    assert wait_until(lambda: rig.drive.state == "SWITCH ON DISABLED")
+    rig.drive.place(0.2 * SCALE)
+    assert wait_until(lambda: abs(rig.axis.feedback().position - 0.2) < 1 / SCALE)
+    rig.axis.enable()  # holds where it was placed: no jump, no following error
+    rig.move(0.25)
+    assert wait_until(lambda: abs(rig.axis.feedback().position - 0.25) < 1e-4)
+    assert rig.faults == []
+
+
 def test_pp_enable_move_disable(pp_rig: Rig) -> None:
     pp_rig.axis.enable()
     pp_rig.axis.send_setpoint(0.08)
