@@ -29,7 +29,7 @@ from agf.errors import MeasurementError, PalletHiddenError
 from agf.geometry import Transform
 from agf.measurement import PalletMeasurement
 from agf.pallets import PalletType
-from agf.vision.edge_agreement import EdgeAgreement, EdgeAgreementConfig, check_face_edges
+from agf.vision.edge_agreement import EdgeAgreement, EdgeAgreementConfig, check_face_edges, face_edge_agreement
 from agf.vision.face_model import face_model_from_pallet
 from agf.vision.pallet_pose import (
     PoseEstimate,
@@ -118,7 +118,8 @@ def measure_pallet(
     Without a prior the pose is first searched at pitch 0; when that measurement fails, again at
     +-half the search volume's ``pitch_max``: a pallet pitched 3-4 deg well below the camera matched
     its level template 60-300 mm off, and the pitch measured there was refused. A refusal's
-    :class:`MeasurementError` carries the :class:`Findings` of the first attempt in ``found``.
+    :class:`MeasurementError` carries the :class:`Findings` of the first attempt in ``found``, and its pose in
+    ``pallet_in_fork`` only when the image confirms that pose's face edges on average.
     """
     start = time.perf_counter()
     timing: dict[str, float] = {}
@@ -268,6 +269,16 @@ def measure_pallet(
         finally:
             timing["edges"] = timing.get("edges", 0.0) + (time.perf_counter() - t) * 1e3
 
+    def rough(pose: PoseEstimate | None) -> Transform | None:
+        """A refused search's pose when the image confirms its face edges on average, else None: a view from
+        level with it may then measure. On the refused first frames of 100 campaign picks, rough poses within
+        4 mm of the truth agreed 12-95 % (most over 50 %), those 39-650 mm off 2-40 %; moving the forks by
+        one of those is a move on a guess."""
+        if pose is None:
+            return None
+        [agreed] = face_edge_agreement(gray, camera, camera_in_fork, [pose.pallet_in_fork], face, forks, config.edges)
+        return pose.pallet_in_fork if agreed.score >= config.edges.min_score else None
+
     starts = [prior.euler[1]] if prior is not None else [0.0, -volume.pitch_max / 2, volume.pitch_max / 2]
     attempts = [(similarity, assumed) for similarity in config.similarities for assumed in starts]
     failures: list[MeasurementError] = []
@@ -283,7 +294,8 @@ def measure_pallet(
         except MeasurementError as exc:
             failures.append(exc)
     else:
-        raise _refusal(failures, volume, config.similarities, Findings(seen.get("pose"), seen.get("evidence")))
+        found = Findings(seen.get("pose"), seen.get("evidence"))
+        raise _refusal(failures, volume, config.similarities, found, rough(found.pose))
     timing["total"] = (time.perf_counter() - start) * 1e3
     measurement = PalletMeasurement(
         pallet_in_camera=pose.pallet_in_camera,
@@ -299,12 +311,13 @@ def measure_pallet(
 
 
 def _refusal(
-    failures: list[MeasurementError], volume: SearchVolume, similarities: Sequence[str], found: Findings
+    failures: list[MeasurementError], volume: SearchVolume, similarities: Sequence[str], found: Findings,
+    rough: Transform | None,
 ) -> MeasurementError:
     """One error for the failed searches, carrying what the vision ``found``: the first one's reason,
-    the others' after it, and the first search's pose as the rough one. When the forks hid the pallet in
-    any of them, a :class:`PalletHiddenError` with that search's rough pose, as moving the forks out of
-    the view may then give a measurement."""
+    the others' after it, and ``rough``, the first search's pose if the image confirms it. When the forks hid
+    the pallet in any of them, a :class:`PalletHiddenError` with that search's rough pose, as moving the forks
+    out of the view may then give a measurement."""
     reasons = [str(f) for f in failures]
     others = sorted(set(reasons[1:]) - {reasons[0]})
     also = (f" (with the pose searched at pitch +-{math.degrees(volume.pitch_max / 2):.1f} deg and by "
@@ -312,7 +325,6 @@ def _refusal(
     message = reasons[0] + (also + ": " + "; ".join(others) + ")" if others else "")
     hidden = next((f for f in failures if isinstance(f, PalletHiddenError)), None)
     if hidden is None:
-        rough = found.pose.pallet_in_fork if found.pose is not None else None
         return MeasurementError(message, found=found, pallet_in_fork=rough)
     return PalletHiddenError(message, hidden.pallet_in_fork, found=found)
 
