@@ -269,8 +269,9 @@ def _markdown(folder: Path, meta: Mapping[str, Any], results: list[dict[str, Any
     if any("viewing_moves" in r for r in results):
         viewed = sum(r.get("viewing_moves", 0) > 0 for r in results)
         lines += [
-            f"Picks that needed a viewing move (the forks hid the pallet, so they moved clear of it to measure "
-            f"again): {viewed}, with {figures['viewing_moves']} moves in all.",
+            f"Picks that needed a viewing move (the forks hid the pallet, or a refused measurement's confirmed "
+            f"pose lay well above or below them, so the lift moved level with it to measure again): {viewed}, "
+            f"with {figures['viewing_moves']} moves in all.",
             "",
         ]
     failed = [r for r in results if not r["ok"]]
