@@ -37,6 +37,17 @@ def as_bench_reads(frame):
     return cv2.imdecode(cv2.imencode(".png", frame)[1], cv2.IMREAD_GRAYSCALE)
 
 
+def campaign_first_frame(seed: int, index: int):
+    """Pick ``index`` of the random campaign ``seed``: its scene and the first frame the simulated world
+    renders of it, in grey."""
+    from agf.scene import load_scene
+    from drivers.sim.fast_render import render_fast
+    from drivers.sim.world import campaign_scene
+
+    scene = campaign_scene(load_scene(repo_path("configs/scenes/pick.yaml")), seed, index)
+    return scene, cv2.cvtColor(render_fast(scene)[0], cv2.COLOR_BGR2GRAY)
+
+
 def scene_files() -> list[Path]:
     files = sorted((SCENES / "paper").glob("*.yaml")) + sorted((SCENES / "robust").glob("*.yaml"))
     if not SHARED_DATA.is_dir():  # the real-lens scene needs ../shared/data

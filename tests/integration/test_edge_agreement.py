@@ -16,12 +16,12 @@ from agf.config import load_config
 from agf.errors import MeasurementError
 from agf.geometry import Transform, transform_from_dict
 from agf.pallets import load_pallets
-from agf.paths import DEFAULT_CONFIG, repo_path
+from agf.paths import DEFAULT_CONFIG
 from agf.scene import load_scene
 from agf.vision.edge_agreement import check_face_edges, face_edge_agreement
 from agf.vision.face_model import face_model_from_pallet
 from agf.vision.measure import measure_pallet
-from tests.integration.conftest import SCENES, SHARED_DATA
+from tests.integration.conftest import SCENES, SHARED_DATA, campaign_first_frame
 
 CONFIG = load_config(DEFAULT_CONFIG)
 CATALOGUE = load_pallets(CONFIG.vision.pallets)
@@ -93,11 +93,7 @@ def test_regression_campaign_loaded_pallet_45_mm_along_the_line_of_sight_is_refu
     (x +29, z -35 mm) and accepted: its pocket tops and bottoms lay on lines, only its upright edges did not
     (first frame of pick 29 of campaign seed 7; the whole measurement is checked by its scene file in
     tests/data/scenes/fixed-wrong-accepts)."""
-    from drivers.sim.fast_render import render_fast
-    from drivers.sim.world import campaign_scene
-
-    scene = campaign_scene(load_scene(repo_path("configs/scenes/pick.yaml")), 7, 29)
-    image = cv2.cvtColor(render_fast(scene)[0], cv2.COLOR_BGR2GRAY)
+    scene, image = campaign_first_frame(7, 29)
     camera = load_camera(CONFIG.vision.camera)
     face = face_model_from_pallet(CATALOGUE[scene.pallet.type])
     check_face_edges(image, camera, scene.camera_in_fork, scene.pallet.in_fork, face, CONFIG.forks)

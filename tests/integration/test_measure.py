@@ -16,10 +16,10 @@ from agf.camera import load_camera
 from agf.config import load_config
 from agf.errors import MeasurementError
 from agf.pallets import load_pallets
-from agf.paths import DEFAULT_CONFIG, repo_path
+from agf.paths import DEFAULT_CONFIG
 from agf.scene import load_scene
 from agf.vision.measure import measure_pallet
-from tests.integration.conftest import SCENES, as_bench_reads, scene_files
+from tests.integration.conftest import SCENES, as_bench_reads, campaign_first_frame, scene_files
 
 CONFIG = load_config(DEFAULT_CONFIG)
 CATALOGUE = load_pallets(CONFIG.vision.pallets)
@@ -234,11 +234,7 @@ def test_a_refusal_carries_its_rough_pose_only_when_the_image_confirms_it(pick, 
     """The controller moves the forks level with a refusal's rough pose to look again. Campaign seed 7, first
     frames: pick 60's pose was within 2 mm and its face edges agreed 95 % (refused for its pitch); pick 34's
     was 223 mm off along the line of sight, agreeing 18 %, and a move by it is a move on a guess."""
-    from drivers.sim.fast_render import render_fast
-    from drivers.sim.world import campaign_scene
-
-    scene = campaign_scene(load_scene(repo_path("configs/scenes/pick.yaml")), 7, pick)
-    image = cv2.cvtColor(render_fast(scene)[0], cv2.COLOR_BGR2GRAY)
+    scene, image = campaign_first_frame(7, pick)
     pallet = load_pallets(CONFIG.vision.pallets)[scene.pallet.type]
     with pytest.raises(MeasurementError) as refused:
         measure_pallet(image, load_camera(CONFIG.vision.camera), scene.camera_in_fork, pallet, CONFIG.vision.search,
