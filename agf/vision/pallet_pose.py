@@ -22,6 +22,7 @@ with the commissioning calibration ``camera_in_fork``.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 import time
@@ -78,6 +79,14 @@ class PoseSearchConfig:
     # `agf simulate --random 100 --seed 7`).
     end_steps: int = 2
     ends_agreement: float = 0.01
+    # Along one line of sight a depth is a scale, and seen steeply from above the face's similarity can be
+    # flat over 20 % of depth (the face plus a deck board matches as well as the face alone: campaign seed 7,
+    # pick 3, 0.68 from 1.32 m to 1.62 m). Coarse peaks at the best's place but at depths this far from it
+    # (relative), scoring within ``depth_window`` of it, are fitted too, at most ``depths`` of them, and
+    # returned as :attr:`PoseEstimate.depths` for the caller to decide between by other evidence.
+    depth_gap: float = 0.08
+    depth_window: float = 0.1
+    depths: int = 2
 
     def __post_init__(self) -> None:
         if self.similarity not in ("correlation", "regions"):
@@ -100,6 +109,9 @@ class PoseEstimate:
     group_inliers: float
     sigma: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # x, y, z (m), yaw (rad), from the fit
     timing_ms: dict[str, float] = field(default_factory=dict)
+    # Fits at the same place in the image but another depth (PoseSearchConfig.depth_gap), best first, with
+    # this estimate's margin: the similarity does not choose between them (see PoseSearchConfig.depths).
+    depths: tuple[PoseEstimate, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -164,10 +176,11 @@ def estimate_pallet_pose(
     box = _search_box(volume, prior, pitch, config)
     pyramid = _pyramid(gray, max(config.pyramid_level, config.fine_level))
     matcher = _matcher(face, config)
-    coarse = _scan(
+    found = _scan(
         pyramid[config.pyramid_level], config.pyramid_level, config.coarse_pixel, 1.0, camera, camera_in_fork, face,
         box, matcher,
     )
+    coarse = _distinct(found, face, camera_in_fork.translation)
     fine_image = pyramid[config.fine_level]
     candidates = [
         _rescan(fine_image, camera, camera_in_fork, face, params, config, matcher)
@@ -184,8 +197,9 @@ def estimate_pallet_pose(
     timing["refine"] = (time.perf_counter() - t) * 1e3
     score, params, *_ = fitted[0]
     margin = _margin(score, params, fitted[1:], candidates, face, camera_in_fork.translation)
+    depths = _depths(gray, fine_image, camera, camera_in_fork, face, found, fitted, forks, config, matcher)
     timing["total"] = (time.perf_counter() - start) * 1e3
-    estimate = _estimate(fitted[0], margin, camera_in_fork, timing)
+    estimate = _estimate(fitted[0], margin, camera_in_fork, timing, depths)
     if check:
         check_pose_estimate(estimate, camera, face, config)
     return estimate
@@ -233,7 +247,9 @@ def _fine(gray, camera, camera_in_fork, face: FaceModel, starts: list[_Params], 
     return sorted([(score, *fit) for score, fit in zip(scores, fits, strict=True)], key=lambda f: -f[0])
 
 
-def _estimate(fit: tuple, margin: float, camera_in_fork: Transform, timing: dict[str, float]) -> PoseEstimate:
+def _estimate(
+    fit: tuple, margin: float, camera_in_fork: Transform, timing: dict[str, float], depths: list[tuple] = ()
+) -> PoseEstimate:
     score, params, residual, used, occluded, worst_group, sigma = fit
     pallet_in_fork = params.transform()
     return PoseEstimate(
@@ -247,7 +263,51 @@ def _estimate(fit: tuple, margin: float, camera_in_fork: Transform, timing: dict
         worst_group,
         sigma,
         timing,
+        # another depth's lead over the rivals elsewhere: the best's, less what it scores below the best
+        tuple(_estimate(other, margin - (score - other[0]), camera_in_fork, {}) for other in depths),
     )
+
+
+def _depths(gray, fine_image, camera, camera_in_fork, face, found, fitted, forks, config, matcher) -> list[tuple]:
+    """The fits at the place of the best fit ``fitted[0]`` but another depth: those among ``fitted`` and
+    those from the coarse peaks ``found`` at the best peak's place and within ``config.depth_window`` of its
+    score, each at least ``config.depth_gap`` (relative) from the best and from each other, at most
+    ``config.depths``, by similarity. The coarse peaks are scanned again in a narrow window only: in the
+    usual one they slid back to the best's depth, the similarity being flat along the line of sight."""
+    eye = camera_in_fork.translation
+    near = [p for s, p in found if s >= found[0][0] - config.depth_window]
+    here = _same_places(_positions(near[:1])[0], _positions(near), face, eye)
+    peaks = [p for p, same in zip(near, here, strict=True) if same]
+    narrow = dataclasses.replace(config, fine_window=(config.coarse_pixel * 2,) * 3)
+    kept = [fitted[0][1]]
+    starts = []
+    for params in peaks:
+        if len(starts) < config.depths and _new_depth(params, kept, eye, config.depth_gap):
+            rescanned = _rescan(fine_image, camera, camera_in_fork, face, params, narrow, matcher)
+            if rescanned is not None and _new_depth(rescanned[1], kept, eye, config.depth_gap):
+                kept.append(rescanned[1])
+                starts.append(rescanned[1])
+    fits = list(fitted[1:])
+    if starts:
+        try:
+            fits += _fine(gray, camera, camera_in_fork, face, starts, forks, config)
+        except MeasurementError:
+            pass
+    best = fitted[0][1]
+    chosen: list[tuple] = []
+    for fit in sorted(fits, key=lambda f: -f[0]):
+        placed = [best] + [f[1] for f in chosen]
+        if len(chosen) < config.depths and _same_place(fit[1], best, face, eye) and _new_depth(
+            fit[1], placed, eye, config.depth_gap
+        ):
+            chosen.append(fit)
+    return chosen
+
+
+def _new_depth(params: _Params, kept: list[_Params], eye: Array, gap: float) -> bool:
+    """Whether ``params`` lies at least ``gap`` (relative) nearer or further from ``eye`` than each of ``kept``."""
+    distance = np.linalg.norm(_positions([params])[0] - eye)
+    return bool(np.all(np.abs(np.linalg.norm(_positions(kept) - eye, axis=1) / distance - 1.0) >= gap))
 
 
 # -- search space ---------------------------------------------------------------------------------
@@ -293,7 +353,8 @@ def _scan(
     box: _Box,
     matcher: _Matcher,
 ) -> list[tuple[float, _Params]]:
-    """(score, params) of the best peaks of ``matcher``'s score over ``box``, best first, one per place."""
+    """(score, params) of the peaks of ``matcher``'s score over ``box``, best first (:func:`_distinct` keeps
+    the best of each place)."""
     fork_in_camera = camera_in_fork.inverse()
     corners = _corners(box.low, box.high)
     slack = _corners(box.low - _BOX_SLACK, box.high + _BOX_SLACK)
@@ -312,7 +373,7 @@ def _scan(
         peaks = _peaks(integrals, _templates(face, matcher.edges, 1.0 / scales), matcher, scales, f, window, bounds_v)
         found += _in_box(peaks, R_cv, camera_in_fork, yaw, box)
     found.sort(key=lambda c: -c[0])
-    return _distinct(found, face, camera_in_fork.translation)
+    return found
 
 
 def _corners(low: Array, high: Array) -> Array:

@@ -245,3 +245,22 @@ def test_a_refusal_carries_its_rough_pose_only_when_the_image_confirms_it(pick, 
         return
     assert rough is not None
     assert math.dist(rough.translation, scene.pallet.in_fork.translation) < 0.01
+
+
+def test_regression_a_face_matched_with_a_deck_board_nearer_along_the_line_of_sight_is_measured_at_its_depth():
+    """Seen steeply from above, the face plus the deck board behind it matched better (0.70) 190 mm nearer along
+    the same line of sight than the face alone at its depth (0.62); the pitch searched there found no deck edges
+    and the frame was refused (campaign seed 7, pick 39). The search now returns the other depths it fitted, and
+    the face's edges decide: 70 % agreed at the true depth, 26 % at the nearer one."""
+    from agf.vision.face_model import face_model_from_pallet
+    from agf.vision.pallet_pose import estimate_pallet_pose
+
+    scene, image = campaign_first_frame(7, 39)
+    pallet, camera, truth = CATALOGUE[scene.pallet.type], load_camera(scene.camera), scene.pallet.in_fork.translation
+    estimate = estimate_pallet_pose(image, camera, scene.camera_in_fork, face_model_from_pallet(pallet),
+                                    CONFIG.vision.search, forks=CONFIG.forks, check=False)
+    assert math.dist(estimate.pallet_in_fork.translation, truth) > 0.1  # the similarity alone is wrong here
+    assert min(math.dist(d.pallet_in_fork.translation, truth) for d in estimate.depths) < 0.01
+    detail = measure_pallet(image, camera, scene.camera_in_fork, pallet, CONFIG.vision.search, forks=CONFIG.forks)
+    assert within_bounds(errors(scene, detail.measurement)), errors(scene, detail.measurement)
+
