@@ -302,8 +302,10 @@ def measure_pallet(
     failures: list[MeasurementError] = []
     for similarity, assumed in attempts:
         search = dataclasses.replace(config.pose, similarity=similarity)
-        # Searched again near a pose of this frame: its rivals were judged in the wide search, so one candidate.
-        narrow = dataclasses.replace(search, prior_window=0.04, prior_yaw_window=math.radians(2), candidates=1)
+        # Searched again near a pose of this frame: its rivals and other depths were judged in the wide search, so
+        # one candidate and no depths.
+        narrow = dataclasses.replace(search, prior_window=0.04, prior_yaw_window=math.radians(2), candidates=1,
+                                     depths=0)
         try:
             pose, chosen, evidence = converged(assumed)
             placed = [onto_deck_edges(pose, chosen)] if chosen.hypothesis == "unloaded" and chosen.placed else []

@@ -26,6 +26,7 @@ import dataclasses
 import functools
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Literal, Protocol
 
@@ -93,6 +94,8 @@ class PoseSearchConfig:
             raise ValueError(f"similarity must be 'correlation' or 'regions', got {self.similarity!r}")
         if self.pocket_bands < 1:
             raise ValueError(f"pocket_bands must be at least 1, got {self.pocket_bands}")
+        if self.depths < 0:
+            raise ValueError(f"depths must be 0 or more, got {self.depths}")
 
 
 @dataclass(frozen=True)
@@ -248,7 +251,7 @@ def _fine(gray, camera, camera_in_fork, face: FaceModel, starts: list[_Params], 
 
 
 def _estimate(
-    fit: tuple, margin: float, camera_in_fork: Transform, timing: dict[str, float], depths: list[tuple] = ()
+    fit: tuple, margin: float, camera_in_fork: Transform, timing: dict[str, float], depths: Sequence[tuple] = ()
 ) -> PoseEstimate:
     score, params, residual, used, occluded, worst_group, sigma = fit
     pallet_in_fork = params.transform()
@@ -272,28 +275,29 @@ def _depths(gray, fine_image, camera, camera_in_fork, face, found, fitted, forks
     """The fits at the place of the best fit ``fitted[0]`` but another depth: those among ``fitted`` and
     those from the coarse peaks ``found`` at the best peak's place and within ``config.depth_window`` of its
     score, each at least ``config.depth_gap`` (relative) from the best and from each other, at most
-    ``config.depths``, by similarity. The coarse peaks are scanned again in a narrow window only: in the
-    usual one they slid back to the best's depth, the similarity being flat along the line of sight."""
+    ``config.depths`` (none when that is 0), by similarity. The coarse peaks are scanned again in a narrow
+    window only: in the usual one they slid back to the best's depth, the similarity being flat along the line
+    of sight."""
+    if config.depths == 0:
+        return []
     eye = camera_in_fork.translation
     near = [p for s, p in found if s >= found[0][0] - config.depth_window]
     here = _same_places(_positions(near[:1])[0], _positions(near), face, eye)
     peaks = [p for p, same in zip(near, here, strict=True) if same]
     narrow = dataclasses.replace(config, fine_window=(config.coarse_pixel * 2,) * 3)
-    kept = [fitted[0][1]]
-    starts = []
+    best = fitted[0][1]
+    kept = [best]  # the best, then the starts at other depths
     for params in peaks:
-        if len(starts) < config.depths and _new_depth(params, kept, eye, config.depth_gap):
+        if len(kept) <= config.depths and _new_depth(params, kept, eye, config.depth_gap):
             rescanned = _rescan(fine_image, camera, camera_in_fork, face, params, narrow, matcher)
             if rescanned is not None and _new_depth(rescanned[1], kept, eye, config.depth_gap):
                 kept.append(rescanned[1])
-                starts.append(rescanned[1])
     fits = list(fitted[1:])
-    if starts:
+    if len(kept) > 1:
         try:
-            fits += _fine(gray, camera, camera_in_fork, face, starts, forks, config)
+            fits += _fine(gray, camera, camera_in_fork, face, kept[1:], forks, config)
         except MeasurementError:
             pass
-    best = fitted[0][1]
     chosen: list[tuple] = []
     for fit in sorted(fits, key=lambda f: -f[0]):
         placed = [best] + [f[1] for f in chosen]

@@ -92,3 +92,12 @@ def test_pocket_bands_must_be_positive():
         PoseSearchConfig(pocket_bands=0)
     with pytest.raises(ValueError, match="similarity"):
         PoseSearchConfig(similarity="edges")  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(
+    ("change", "match"),
+    [({"similarity": "chamfer"}, "similarity"), ({"pocket_bands": 0}, "pocket_bands"), ({"depths": -1}, "depths")],
+)
+def test_a_pose_search_config_out_of_its_range_is_refused(change, match):
+    with pytest.raises(ValueError, match=match):
+        PoseSearchConfig(**change)
