@@ -32,7 +32,7 @@ def measure_command(
     overlay: str | None = None,
 ) -> dict[str, Any]:
     """``agf measure``: DESIGN.md's JSON contract."""
-    frame = cv2.imread(str(image), cv2.IMREAD_GRAYSCALE)
+    frame = cv2.imread(str(image), cv2.IMREAD_COLOR)  # colour: the pitch search reads edges beside clipping in it
     if frame is None:
         raise InputError(f"{image}: not an image OpenCV can read")
     model = load_camera(camera or config.vision.camera)

@@ -72,7 +72,7 @@ def measure_truthed_frames(folder: Path) -> AccuracyTally:
         name = scene_path.stem
         scene = yaml.safe_load(scene_path.read_text())
         truth = json.loads((folder / "images" / f"{name}.truth.json").read_text())
-        image = cv2.imread(str(folder / "images" / f"{name}.png"), cv2.IMREAD_GRAYSCALE)
+        image = cv2.imread(str(folder / "images" / f"{name}.png"), cv2.IMREAD_COLOR)
         if image is None:
             raise FileNotFoundError(f"{folder / 'images' / name}.png: not an image OpenCV can read")
         truth_pose = transform_from_dict(truth["pallet_in_fork"], where=f"{name}.truth.json: pallet_in_fork")

@@ -29,6 +29,7 @@ from agf.config import ForkGeometry
 from agf.errors import MeasurementError
 from agf.geometry import Transform
 from agf.vision.edges import project_with_normals, search_edges
+from agf.vision.grey import grey_from_bgr
 
 Array = NDArray[np.float64]
 
@@ -99,7 +100,7 @@ def fit_panel(
     config: CalibrationConfig = CalibrationConfig(),
 ) -> PanelFit:
     """``camera_in_fork`` from one image of the panel; :class:`MeasurementError` with the reason if refused."""
-    gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    gray = grey_from_bgr(image)
     if gray.shape != (camera.height, camera.width):
         raise MeasurementError(
             f"image is {gray.shape[1]} x {gray.shape[0]}, the camera {camera.width} x {camera.height}"

@@ -19,7 +19,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -31,6 +30,7 @@ from agf.measurement import PalletMeasurement
 from agf.pallets import PalletType
 from agf.vision.edge_agreement import EdgeAgreement, EdgeAgreementConfig, check_face_edges, face_edge_agreement
 from agf.vision.face_model import face_model_from_pallet
+from agf.vision.grey import grey_from_bgr
 from agf.vision.pallet_pose import (
     PoseEstimate,
     PoseSearchConfig,
@@ -128,7 +128,8 @@ def measure_pallet(
     """
     start = time.perf_counter()
     timing: dict[str, float] = {}
-    gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    gray = grey_from_bgr(image)
+    colour = image if image.ndim == 3 else None  # the pitch's edges beside clipped light are read in it
     gray_f = gray.astype(np.float32)  # the pose search's working copy, made once for all its calls
     face = face_model_from_pallet(pallet)
     search = narrow = config.pose  # the pose search of the current attempt; set for each similarity below
@@ -180,9 +181,11 @@ def measure_pallet(
         """Both hypotheses at the first pose; after that the loaded one only when the unloaded one fails,
         as a valid unloaded hypothesis wins anyway (its loaded score is then that of the pose before)."""
         t = time.perf_counter()
-        unloaded = unloaded_evidence(gray, camera, camera_in_fork, pallet, pose.pallet_in_fork, config.pitch)
+        unloaded = unloaded_evidence(gray, camera, camera_in_fork, pallet, pose.pallet_in_fork, config.pitch,
+                                     colour=colour)
         if before is None or not unloaded.valid:
-            loaded = loaded_evidence(gray, camera, camera_in_fork, pallet, pose.pallet_in_fork, config.pitch)
+            loaded = loaded_evidence(gray, camera, camera_in_fork, pallet, pose.pallet_in_fork, config.pitch,
+                                     colour=colour)
         else:
             loaded = before["loaded"]
         timing["pitch"] = timing.get("pitch", 0.0) + (time.perf_counter() - t) * 1e3
@@ -197,7 +200,7 @@ def measure_pallet(
         yaw, _, roll = pose.pallet_in_fork.euler
         for offset in (-config.pitch_probe, config.pitch_probe):
             probe = Transform.from_euler(*pose.pallet_in_fork.translation, roll, chosen.pitch + offset, yaw)
-            again = edges_of(gray, camera, camera_in_fork, pallet, probe, config.pitch)
+            again = edges_of(gray, camera, camera_in_fork, pallet, probe, config.pitch, colour=colour)
             if not again.valid or abs(again.pitch - chosen.pitch) > config.pitch_probe_tolerance:
                 found = f"{math.degrees(again.pitch):.2f} deg" if again.valid else "no pair of edges"
                 raise MeasurementError(

@@ -41,6 +41,7 @@ from agf.errors import MeasurementError, PalletHiddenError
 from agf.geometry import Transform, matrix_from_euler
 from agf.vision.edges import EdgeSearch, search_edges
 from agf.vision.face_model import ENDS, FaceModel
+from agf.vision.grey import grey_from_bgr
 
 Array = NDArray[np.float64]
 
@@ -976,8 +977,7 @@ def _gray(image: NDArray, camera: CameraModel) -> NDArray[np.float32]:
             f"image is {image.shape[1]} x {image.shape[0]} pixels but the camera model expects "
             f"{camera.width} x {camera.height}"
         )
-    gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
-    return gray.astype(np.float32, copy=False)
+    return grey_from_bgr(image).astype(np.float32, copy=False)
 
 
 def _pyramid(gray: NDArray[np.float32], levels: int) -> list[NDArray[np.float32]]:

@@ -142,13 +142,17 @@ def unloaded_evidence(
     pallet: PalletType,
     pallet_in_fork: Transform,
     config: PitchConfig = PitchConfig(),
+    *,
+    colour: NDArray[np.uint8] | None = None,
 ) -> PitchEvidence:
-    """The top deck's left and right edges, parallel to pallet X."""
+    """The top deck's left and right edges, parallel to pallet X; ``colour``, the frame ``gray`` was made from,
+    lets edges beside clipped light be read where a channel is not clipped (:func:`unclipped_edge_columns`)."""
     x = np.linspace(0.03, pallet.length - 0.03, 24)
     segments = [
         np.c_[x, np.full_like(x, side * pallet.width / 2), np.full_like(x, pallet.deck_top)] for side in (-1, 1)
     ]
-    pair = _evidence("unloaded", gray, camera, camera_in_fork, pallet_in_fork, segments, 0, config, anchored=True)
+    pair = _evidence("unloaded", gray, camera, camera_in_fork, pallet_in_fork, segments, 0, config, anchored=True,
+                     colour=colour)
     if not pair.valid or pair.sigma <= config.edge_max_sigma:
         return pair
     note = (f"the deck edges give the pitch only to +-{math.degrees(pair.sigma):.2f} deg (at most "
@@ -205,8 +209,11 @@ def loaded_evidence(
     pallet: PalletType,
     pallet_in_fork: Transform,
     config: PitchConfig = PitchConfig(),
+    *,
+    colour: NDArray[np.uint8] | None = None,
 ) -> PitchEvidence:
-    """The load's left and right vertical edges, parallel to pallet Z, within the pallet's width."""
+    """The load's left and right vertical edges, parallel to pallet Z, within the pallet's width (``colour`` as
+    for :func:`unloaded_evidence`)."""
     inset = config.load_search / 2
 
     def edges_up_to(height: float, count: int) -> list[Array]:
@@ -225,6 +232,7 @@ def loaded_evidence(
         PitchConfig(**{**config.__dict__, "band": max(config.band, band)}),
         reach_p=edges_up_to(config.load_reach, 48),
         face=True,
+        colour=colour,
     )
     if not pair.candidates:
         return pair
@@ -475,23 +483,26 @@ def _evidence(
     anchored: bool = False,
     reach_p: list[Array] | None = None,
     face: bool = False,
+    colour: NDArray[np.uint8] | None = None,
 ) -> PitchEvidence:
     """Edges along ``segments_p`` (pallet frame, parallel to pallet axis ``axis_index``); ``anchored``
     when each segment's first point is a model point the pose pins (the deck's front corners); ``reach_p``,
     longer segments along which a found edge is followed for its fit (the load's full height); ``face``:
-    keep the edge points of the area the edges' regions span (``face_points``)."""
+    keep the edge points of the area the edges' regions span (``face_points``); ``colour``: the frame ``gray`` was
+    made from, for the edges beside clipped light."""
     pallet_in_camera = camera_in_fork.inverse() @ pallet_in_fork
     predicted = pallet_in_camera.rotation[:, axis_index]
     segments = [pallet_in_camera.apply(s) for s in segments_p]
     reach = [pallet_in_camera.apply(s) for s in reach_p] if reach_p is not None else segments
     panorama = _panorama_over(predicted, segments + reach, config)
     image, valid = render_panorama(gray, camera, panorama)
+    colour_panorama = render_panorama(colour, camera, panorama)[0] if colour is not None else None
     regions = [_region(panorama, segment, config) for segment in segments]
     reaches = [_region(panorama, far, config) for far in reach]
     spanned = np.r_[[r[[0, 1, 2, 3]] for r in regions + reaches]]
     area = np.array([spanned[:, 0].min(), spanned[:, 1].max(), spanned[:, 2].min(), spanned[:, 3].max()])
     areas = regions + reaches + ([area] if face else [])
-    directions, strong, columns, rows = _edge_points(image.astype(np.float32), valid, panorama, areas)
+    directions, strong, columns, rows = _edge_points(image.astype(np.float32), valid, panorama, areas, colour_panorama)
     face_points = directions[_inside(area, columns, rows) & strong] if face else None
     lines, ratios, tilts = [], [], []
     rivals: list[SphereLine | None] = []
@@ -708,12 +719,16 @@ def _panorama_over(axis: Array, segments: list[Array], config: PitchConfig) -> P
     return Panorama.around(axis, width, height, reference=probe.reference, lon_range=lon_range, lat_range=lat_range)
 
 
-def _edge_points(image: NDArray[np.float32], valid: NDArray[np.bool_], panorama: Panorama, areas: list[Array]):
+def _edge_points(
+    image: NDArray[np.float32], valid: NDArray[np.bool_], panorama: Panorama, areas: list[Array],
+    colour: NDArray[np.uint8] | None = None,
+):
     """Sub-pixel maxima of the horizontal gradient along each row above half an adaptive threshold, and
     which of them reach the threshold itself (the strong ones that lines are fitted to).
 
     Directions (camera frame) are computed only for maxima in one of the ``areas`` (regions as
-    :func:`_region` gives them), NaN elsewhere: the rest of the panorama only sets the threshold.
+    :func:`_region` gives them), NaN elsewhere: the rest of the panorama only sets the threshold. With the
+    ``colour`` panorama, maxima beside clipped light are found again in it (:func:`unclipped_edge_columns`).
     """
     smooth = cv2.GaussianBlur(image, (0, 0), 0.8)
     gx = np.abs(cv2.Sobel(smooth, cv2.CV_32F, 1, 0, ksize=3))
@@ -730,10 +745,51 @@ def _edge_points(image: NDArray[np.float32], valid: NDArray[np.bool_], panorama:
     l, c, r = gx[rows, cols - 1], gx[rows, cols], gx[rows, cols + 1]
     offset = 0.5 * (l - r) / np.where(l - 2 * c + r < 0, l - 2 * c + r, -1.0)
     columns, rows = cols + offset, rows.astype(float)
+    if colour is not None:
+        columns = unclipped_edge_columns(colour, columns, rows, threshold)
+        kept = ~np.isnan(columns)
+        columns, rows, c = columns[kept], rows[kept], c[kept]
     needed = np.any([_inside(area, columns, rows) for area in areas], axis=0)
     directions = np.full((len(rows), 3), np.nan)
     directions[needed] = panorama.directions_from_pixels(np.stack([columns[needed], rows[needed]], axis=1))
     return directions, c > threshold, columns, rows
+
+
+CLIPPED = 250  # a colour channel this bright may be clipped
+
+
+def unclipped_edge_columns(
+    colour: NDArray[np.uint8], columns: Array, rows: Array, threshold: float, reach: int = 3
+) -> Array:
+    """Edge columns (N,) found again, where a colour channel clips within ``reach`` px of them along the row,
+    in the channel that does not clip there and has the strongest gradient; NaN where every channel clips or
+    the unclipped ones show no edge (their gradient under half ``threshold``).
+
+    Blur spreads an overexposed surface's light past its outline before the sensor clips it, so the
+    gradient maximum of a clipped channel (and of the grey made from it) lies outside the outline."""
+    r = rows.astype(int)
+    centre = np.round(columns).astype(int)
+    window = np.clip(centre[:, None] + np.arange(-reach, reach + 1), 0, colour.shape[1] - 1)  # (N, W)
+    clipped = colour[r[:, None], window].max(axis=1) >= CLIPPED  # (N, 3)
+    near = np.flatnonzero(clipped.any(axis=1))
+    if near.size == 0:
+        return columns
+    smooth = cv2.GaussianBlur(colour.astype(np.float32), (0, 0), 0.8)
+    gx = np.abs(cv2.Sobel(smooth, cv2.CV_32F, 1, 0, ksize=3))
+    g = gx[r[near, None], window[near]]  # (n, W, 3)
+    peak = np.where(clipped[near], -1.0, g.max(axis=1))  # (n, 3)
+    channel = np.argmax(peak, axis=1)
+    profile = g[np.arange(near.size), :, channel]  # (n, W)
+    k = np.clip(np.argmax(profile, axis=1), 1, 2 * reach - 1)
+    i = np.arange(near.size)
+    left, mid, right = profile[i, k - 1], profile[i, k], profile[i, k + 1]
+    curvature = left - 2 * mid + right
+    offset = 0.5 * (left - right) / np.where(curvature < 0, curvature, -1.0)
+    found = window[near, 0] + k + offset
+    usable = (peak[i, channel] >= 0.5 * threshold) & (mid >= np.maximum(left, right))
+    out = columns.copy()
+    out[near] = np.where(usable, found, np.nan)
+    return out
 
 
 def _from_reference_viewpoint(camera: CameraModel, directions: Array, segment: Array) -> Array:

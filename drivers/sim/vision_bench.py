@@ -46,7 +46,7 @@ def rendered(scene: Scene, key: str) -> np.ndarray:
     if not path.exists():
         path.parent.mkdir(parents=True, exist_ok=True)
         cv2.imwrite(str(path), render.render(scene)[0])
-    return cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    return cv2.imread(str(path), cv2.IMREAD_COLOR)
 
 
 def rendered_fast(scene: Scene, key: str) -> np.ndarray:
@@ -58,7 +58,7 @@ def rendered_fast(scene: Scene, key: str) -> np.ndarray:
     if not path.exists():
         path.parent.mkdir(parents=True, exist_ok=True)
         cv2.imwrite(str(path), fast_render.render_fast(scene)[0])
-    return cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    return cv2.imread(str(path), cv2.IMREAD_COLOR)
 
 
 def _keys(quick: bool) -> list[str]:

@@ -31,21 +31,15 @@ def render_all(scene_paths: list[Path], out_dir: Path) -> dict[str, Path]:
     return {f"{p.parent.name}/{p.stem}": out_dir / f"{p.parent.name}-{p.stem}.png" for p in scene_paths}
 
 
-def as_bench_reads(frame):
-    """``frame`` as ``agf bench`` measures it: written as PNG and read back in grey, whose conversion from
-    colour differs from the measurement's own by a grey level here and there (enough to change a verdict)."""
-    return cv2.imdecode(cv2.imencode(".png", frame)[1], cv2.IMREAD_GRAYSCALE)
-
-
 def campaign_first_frame(seed: int, index: int):
     """Pick ``index`` of the random campaign ``seed``: its scene and the first frame the simulated world
-    renders of it, in grey."""
+    renders of it (colour)."""
     from agf.scene import load_scene
     from drivers.sim.fast_render import render_fast
     from drivers.sim.world import campaign_scene
 
     scene = campaign_scene(load_scene(repo_path("configs/scenes/pick.yaml")), seed, index)
-    return scene, cv2.cvtColor(render_fast(scene)[0], cv2.COLOR_BGR2GRAY)
+    return scene, render_fast(scene)[0]
 
 
 def scene_files() -> list[Path]:

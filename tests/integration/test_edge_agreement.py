@@ -93,7 +93,8 @@ def test_regression_campaign_loaded_pallet_45_mm_along_the_line_of_sight_is_refu
     (x +29, z -35 mm) and accepted: its pocket tops and bottoms lay on lines, only its upright edges did not
     (first frame of pick 29 of campaign seed 7; the whole measurement is checked by its scene file in
     tests/data/scenes/fixed-wrong-accepts)."""
-    scene, image = campaign_first_frame(7, 29)
+    scene, frame = campaign_first_frame(7, 29)
+    image = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
     camera = load_camera(CONFIG.vision.camera)
     face = face_model_from_pallet(CATALOGUE[scene.pallet.type])
     check_face_edges(image, camera, scene.camera_in_fork, scene.pallet.in_fork, face, CONFIG.forks)

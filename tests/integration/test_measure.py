@@ -19,7 +19,7 @@ from agf.pallets import load_pallets
 from agf.paths import DEFAULT_CONFIG
 from agf.scene import load_scene
 from agf.vision.measure import measure_pallet
-from tests.integration.conftest import SCENES, as_bench_reads, campaign_first_frame, scene_files
+from tests.integration.conftest import SCENES, campaign_first_frame, scene_files
 
 CONFIG = load_config(DEFAULT_CONFIG)
 CATALOGUE = load_pallets(CONFIG.vision.pallets)
@@ -27,9 +27,10 @@ PAPER = [f"paper/{p.stem}" for p in sorted((SCENES / "paper").glob("*.yaml"))]
 ROBUST = [f"{p.parent.name}/{p.stem}" for p in scene_files() if p.parent.name == "robust"]
 
 
-def measure(key: str, rendered, pallet_type: str | None = None, colour: bool = False):
+def measure(key: str, rendered, pallet_type: str | None = None):
+    """Measure the rendered frame of scene ``key`` in colour, as ``agf bench`` and ``agf measure`` read it."""
     scene = load_scene(SCENES / f"{key}.yaml")
-    image = cv2.imread(str(rendered[key]), cv2.IMREAD_COLOR if colour else cv2.IMREAD_GRAYSCALE)
+    image = cv2.imread(str(rendered[key]), cv2.IMREAD_COLOR)
     pallet = CATALOGUE[pallet_type or scene.pallet.type]
     detail = measure_pallet(image, load_camera(scene.camera), scene.camera_in_fork, pallet, CONFIG.vision.search,
                             forks=CONFIG.forks)
@@ -37,14 +38,14 @@ def measure(key: str, rendered, pallet_type: str | None = None, colour: bool = F
 
 
 def measure_random_look(key: str, look: int | None = None):
-    """Measure a random-look scene from the campaign renderer, read as ``agf bench`` reads it (a PNG); with
+    """Measure a random-look scene from the campaign renderer, in colour as ``agf bench`` reads it; with
     ``look``, random look ``look`` of scene ``key`` as ``agf bench`` and its look hunts draw it."""
     from drivers.sim.fast_render import render_fast
 
     scene = load_scene(SCENES / f"{key}.yaml")
     if look is not None:
         scene = dataclasses.replace(scene, look="random", seed=scene.seed * 100 + look + 1)
-    image = as_bench_reads(render_fast(scene)[0])
+    image = render_fast(scene)[0]
     detail = measure_pallet(image, load_camera(scene.camera), scene.camera_in_fork, CATALOGUE[scene.pallet.type],
                             CONFIG.vision.search, forks=CONFIG.forks)
     return scene, detail.measurement
@@ -187,7 +188,7 @@ def test_pose_pitch_two_cycle_is_split_at_its_midpoint(rendered):
     """Regression: on the colour frame the simulated world hands over (its grey conversion differs from
     imread's), the load edges' pitch swung 0.07 deg with the pose's pitch and never agreed (random pick 73),
     and the pick was refused. The split itself: tests/unit/test_measure_iteration.py."""
-    scene, measurement = measure("robust/short-load-pose-pitch-cycle", rendered, colour=True)
+    scene, measurement = measure("robust/short-load-pose-pitch-cycle", rendered)
     assert within_bounds(errors(scene, measurement)), errors(scene, measurement)
     assert measurement.loaded
 
@@ -195,7 +196,7 @@ def test_pose_pitch_two_cycle_is_split_at_its_midpoint(rendered):
 def test_load_edges_disagreeing_with_the_face_lines_are_searched_again_at_the_face_pitch():
     """Regression: searched around 3 deg, the load's edges gave 3.71 deg and the 24 lines on its face
     4.14 deg (truth 4.19); the measurement was refused. Searched again at the face's pitch, the edges agree
-    with it (random look 1 of paper scene loaded-low-front-up, as ``agf bench`` reads it: a PNG)."""
+    with it (random look 1 of paper scene loaded-low-front-up, as ``agf bench`` reads it)."""
     scene, measurement = measure_random_look("fixed-wrong-accepts/loaded-low-front-up-look-1")
     assert within_bounds(errors(scene, measurement)), errors(scene, measurement)
     assert measurement.loaded
@@ -204,7 +205,7 @@ def test_load_edges_disagreeing_with_the_face_lines_are_searched_again_at_the_fa
 def test_many_tight_lines_on_the_load_face_give_the_pitch_where_the_load_edges_disagree():
     """Regression: the load's edges gave -1.55 deg, the 15 lines on its face -1.00 deg within 0.02 deg
     (truth -0.99), also when searched again at the face's pitch; the measurement was refused. Many tight
-    lines now give the pitch alone (random look 0 of paper scene loaded-middle-rear-up, read from a PNG)."""
+    lines now give the pitch alone (random look 0 of paper scene loaded-middle-rear-up, as ``agf bench`` reads it)."""
     scene, measurement = measure_random_look("fixed-wrong-accepts/loaded-middle-rear-up-look-0")
     assert within_bounds(errors(scene, measurement)), errors(scene, measurement)
     assert measurement.loaded

@@ -10,7 +10,13 @@ from agf.geometry import Transform
 from agf.pallets import load_pallets
 from agf.paths import DEFAULT_CONFIG
 from agf.vision.hough import SphereLine, fit_plane_normal
-from agf.vision.pitch import PitchEvidence, direction_of_parallel_lines, pose_from_deck_edges, tilt_sigma
+from agf.vision.pitch import (
+    PitchEvidence,
+    direction_of_parallel_lines,
+    pose_from_deck_edges,
+    tilt_sigma,
+    unclipped_edge_columns,
+)
 
 PALLET = load_pallets(load_config(DEFAULT_CONFIG).vision.pallets)["jis-t11"]
 CAMERA_IN_FORK = Transform.from_euler(-0.705, 0.0, 1.055)
@@ -148,3 +154,42 @@ def test_tilt_sigma_is_infinite_for_too_few_points_and_refuses_too_few_runs():
     assert tilt_sigma(points, normal)[1] == np.inf
     with pytest.raises(ValueError, match="at least 3 runs"):
         tilt_sigma(points, normal, blocks=2)
+
+
+def _overexposed_step(edge: float, gains: tuple[float, float, float], blur: float = 1.5) -> np.ndarray:
+    """Rows (8, 64, 3) uint8 of a lit surface left of column ``edge`` against a dark one: blurred in linear light,
+    then each channel scaled by its gain and clipped at 255, as a sensor does."""
+    from math import erf, sqrt
+
+    cols = np.arange(64, dtype=float)
+    lit = np.array([0.5 * (1.0 - erf((c - edge) / (blur * sqrt(2.0)))) for c in cols])
+    row = 40.0 + lit[:, None] * np.array(gains)[None, :]
+    return np.repeat(np.clip(np.round(row), 0, 255).astype(np.uint8)[None], 8, axis=0)
+
+
+def _grey_edge_column(colour: np.ndarray) -> float:
+    """Where the grey frame's horizontal gradient peaks on row 4 (sub-pixel, as the pitch search finds it)."""
+    import cv2
+
+    grey = cv2.GaussianBlur(cv2.cvtColor(colour, cv2.COLOR_BGR2GRAY).astype(np.float32), (0, 0), 0.8)
+    g = np.abs(cv2.Sobel(grey, cv2.CV_32F, 1, 0, ksize=3))[4]
+    k = int(np.argmax(g[1:-1])) + 1
+    return k + 0.5 * (g[k - 1] - g[k + 1]) / (g[k - 1] - 2 * g[k] + g[k + 1])
+
+
+def test_regression_an_overexposed_deck_edge_is_found_where_a_channel_is_not_clipped():
+    """Campaign seed 7 pick 42: blur spread the overexposed deck's light outward before the sensor clipped it,
+    so its edges read 0.5-1.2 px outward in grey and the pitch was accepted 0.18 deg off."""
+    colour = _overexposed_step(30.3, (150.0, 900.0, 1400.0))  # B in range, G and R clipped
+    grey = _grey_edge_column(colour)
+    assert grey - 30.3 > 0.5  # the bias this guards against
+    [column] = unclipped_edge_columns(colour, np.array([grey]), np.array([4.0]), threshold=10.0)
+    assert abs(column - 30.3) < 0.15
+
+
+def test_edges_beside_clipping_in_every_channel_are_dropped_and_those_away_from_it_kept():
+    clipped = _overexposed_step(30.3, (900.0, 900.0, 900.0))
+    assert np.isnan(unclipped_edge_columns(clipped, np.array([31.0]), np.array([4.0]), threshold=10.0)).all()
+    unclipped = _overexposed_step(30.3, (150.0, 180.0, 200.0))
+    columns = np.array([_grey_edge_column(unclipped), 12.0])
+    assert np.array_equal(unclipped_edge_columns(unclipped, columns, np.array([4.0, 4.0]), threshold=10.0), columns)
