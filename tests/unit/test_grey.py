@@ -20,6 +20,13 @@ def test_grey_is_the_png_readers_to_the_level(seed):
     assert not np.array_equal(cv2.cvtColor(colour, cv2.COLOR_BGR2GRAY), read)  # what the world used
 
 
+def test_grey_is_the_png_readers_for_every_colour():
+    b, g, r = (v.ravel() for v in np.meshgrid(*[np.arange(256)] * 3, indexing="ij"))
+    colours = np.stack([b, g, r], axis=1).astype(np.uint8).reshape(4096, 4096, 3)
+    expected = (9797 * r.astype(np.int64) + 19234 * g + 3737 * b) >> 15  # libpng's fixed point, rounded down
+    assert np.array_equal(grey_from_bgr(colours).ravel(), expected)
+
+
 def test_a_grey_image_is_returned_as_it_is_and_other_shapes_are_refused():
     grey = np.zeros((4, 5), np.float32)
     assert grey_from_bgr(grey) is grey
