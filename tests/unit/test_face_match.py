@@ -101,3 +101,22 @@ def test_pocket_bands_must_be_positive():
 def test_a_pose_search_config_out_of_its_range_is_refused(change, match):
     with pytest.raises(ValueError, match=match):
         PoseSearchConfig(**change)
+
+
+@pytest.mark.parametrize(
+    ("margin", "says"), [(0.04, "the runner-up is within 0.04"), (-0.02, "a rival scores 0.02 above")]
+)
+def test_an_ambiguous_pose_says_whether_a_rival_leads_or_trails(face, margin, says):
+    """Regression: a pose refined at the measured pitch scored below a rival of the first search, and the refusal
+    read "the runner-up is within -0.02 of the best similarity" (foreign render lowlight-loaded)."""
+    from agf.camera import load_camera
+    from agf.errors import MeasurementError
+    from agf.geometry import Transform
+    from agf.vision.pallet_pose import PoseEstimate, check_pose_estimate
+
+    config = load_config(DEFAULT_CONFIG)
+    camera_in_fork = Transform.from_euler(-0.705, 0.0, 1.055, 0.0, 0.0, 0.0)
+    pallet_in_fork = Transform.from_euler(0.3, 0.0, -0.2, 0.0, 0.0, 0.0)
+    estimate = PoseEstimate(camera_in_fork.inverse() @ pallet_in_fork, pallet_in_fork, 0.8, margin, 0.3, 100, 0.0, 1.0)
+    with pytest.raises(MeasurementError, match=f"ambiguous pallet: {says}"):
+        check_pose_estimate(estimate, load_camera(config.vision.camera), face)
