@@ -954,11 +954,16 @@ def check_pose_estimate(
         )
     if score < config.min_score:
         raise MeasurementError(f"no convincing pallet front face: similarity {score:.2f} < {config.min_score:.2f}")
+    if margin < 0:  # a pose refined at the measured pitch can score below a rival found at the assumed one
+        raise MeasurementError(
+            f"ambiguous pallet: a rival scores {-margin:.2f} above the measured pose's similarity {score:.2f} "
+            f"(need a lead of {config.min_margin:.2f})"
+        )
     if margin < config.min_margin:
-        # a pose refined at the measured pitch can score below a rival the search found at the assumed one
-        rival = (f"a rival scores {-margin:.2f} above the measured pose's similarity {score:.2f}" if margin < 0 else
-                 f"the runner-up is within {margin:.2f} of the best similarity {score:.2f}")
-        raise MeasurementError(f"ambiguous pallet: {rival} (need a lead of {config.min_margin:.2f})")
+        raise MeasurementError(
+            f"ambiguous pallet: the runner-up is within {margin:.2f} of the best similarity {score:.2f} "
+            f"(need a lead of {config.min_margin:.2f})"
+        )
     if worst_group < config.min_group_inliers:
         raise MeasurementError(
             f"pocket edges fit poorly: only {worst_group:.0%} of one edge group agrees with the fitted pose "
