@@ -730,8 +730,7 @@ def _edge_points(
     :func:`_region` gives them), NaN elsewhere: the rest of the panorama only sets the threshold. With the
     ``colour`` panorama, maxima beside clipped light are found again in it (:func:`unclipped_edge_columns`).
     """
-    smooth = cv2.GaussianBlur(image, (0, 0), 0.8)
-    gx = np.abs(cv2.Sobel(smooth, cv2.CV_32F, 1, 0, ksize=3))
+    gx = _row_gradient(image)
     gx[~cv2.erode(valid.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)] = 0.0
     # The statistics of the gradient, from every 4th row and column: the full sort cost 15 ms a panorama.
     sample, sampled_valid = gx[::4, ::4], valid[::4, ::4]
@@ -742,9 +741,8 @@ def _edge_points(
     peak = (centre > gx[:, :-2]) & (centre >= gx[:, 2:]) & (centre > 0.5 * threshold)  # not in the outer columns
     rows, cols = np.nonzero(peak)
     cols += 1
-    l, c, r = gx[rows, cols - 1], gx[rows, cols], gx[rows, cols + 1]
-    offset = 0.5 * (l - r) / np.where(l - 2 * c + r < 0, l - 2 * c + r, -1.0)
-    columns, rows = cols + offset, rows.astype(float)
+    c = gx[rows, cols]
+    columns, rows = cols + _peak_offset(gx[rows, cols - 1], c, gx[rows, cols + 1]), rows.astype(float)
     needed = np.any([_inside(area, columns, rows) for area in areas], axis=0)
     if colour is not None:
         columns[needed] = unclipped_edge_columns(colour, columns[needed], rows[needed], threshold)
@@ -774,26 +772,33 @@ def unclipped_edge_columns(
     near = np.flatnonzero(clipped.any(axis=1))
     if near.size == 0:
         return columns
-    # The gradient as _edge_points takes it, over the rows and columns these points need only (4 px: the blur's
-    # and the Sobel kernel's reach): over the whole panorama it cost 5 ms a call
+    # The gradient over the rows and columns these points need only (4 px: the blur's and the Sobel kernel's
+    # reach): over the whole panorama it cost 5 ms a call
     top, bottom = max(int(r[near].min()) - 4, 0), int(r[near].max()) + 5
-    left, right = max(int(window[near].min()) - 4, 0), int(window[near].max()) + 5
-    smooth = cv2.GaussianBlur(colour[top:bottom, left:right].astype(np.float32), (0, 0), 0.8)
-    gx = np.abs(cv2.Sobel(smooth, cv2.CV_32F, 1, 0, ksize=3))
-    g = gx[r[near, None] - top, window[near] - left]  # (n, W, 3)
+    first, last = max(int(window[near].min()) - 4, 0), int(window[near].max()) + 5
+    g = _row_gradient(colour[top:bottom, first:last].astype(np.float32))[r[near, None] - top, window[near] - first]
     peak = np.where(clipped[near], -1.0, g.max(axis=1))  # (n, 3)
     channel = np.argmax(peak, axis=1)
     profile = g[np.arange(near.size), :, channel]  # (n, W)
     k = np.clip(np.argmax(profile, axis=1), 1, 2 * reach - 1)
     i = np.arange(near.size)
     left, mid, right = profile[i, k - 1], profile[i, k], profile[i, k + 1]
-    curvature = left - 2 * mid + right
-    offset = 0.5 * (left - right) / np.where(curvature < 0, curvature, -1.0)
-    found = window[near, 0] + k + offset
+    found = window[near, 0] + k + _peak_offset(left, mid, right)
     usable = (peak[i, channel] >= 0.5 * threshold) & (mid >= np.maximum(left, right))
     out = columns.copy()
     out[near] = np.where(usable, found, np.nan)
     return out
+
+
+def _row_gradient(image: NDArray[np.float32]) -> NDArray[np.float32]:
+    """The horizontal gradient's magnitude along the rows of a panorama (grey or colour), lightly smoothed."""
+    return np.abs(cv2.Sobel(cv2.GaussianBlur(image, (0, 0), 0.8), cv2.CV_32F, 1, 0, ksize=3))
+
+
+def _peak_offset(left: Array, centre: Array, right: Array) -> Array:
+    """Sub-pixel offset of a maximum from its sample, by the parabola through it and its two neighbours."""
+    curvature = left - 2 * centre + right
+    return 0.5 * (left - right) / np.where(curvature < 0, curvature, -1.0)
 
 
 def _from_reference_viewpoint(camera: CameraModel, directions: Array, segment: Array) -> Array:

@@ -20,6 +20,7 @@ from agf.paths import DEFAULT_CONFIG
 from agf.scene import load_scene
 from agf.vision.edge_agreement import check_face_edges, face_edge_agreement
 from agf.vision.face_model import face_model_from_pallet
+from agf.vision.grey import grey_from_bgr
 from agf.vision.measure import measure_pallet
 from tests.integration.conftest import SCENES, SHARED_DATA, campaign_first_frame
 
@@ -94,7 +95,7 @@ def test_regression_campaign_loaded_pallet_45_mm_along_the_line_of_sight_is_refu
     (first frame of pick 29 of campaign seed 7; the whole measurement is checked by its scene file in
     tests/data/scenes/fixed-wrong-accepts)."""
     scene, frame = campaign_first_frame(7, 29)
-    image = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
+    image = grey_from_bgr(frame)  # the grey the measurement works on
     camera = load_camera(CONFIG.vision.camera)
     face = face_model_from_pallet(CATALOGUE[scene.pallet.type])
     check_face_edges(image, camera, scene.camera_in_fork, scene.pallet.in_fork, face, CONFIG.forks)
