@@ -109,10 +109,21 @@ def _cmd_simulate(args: argparse.Namespace, config: Config) -> dict[str, Any]:
 
 
 def _campaign_folder(args: argparse.Namespace) -> Path:
-    """``campaigns/<UTC time>-random-N-seed-S`` (or ``-scene-NAME``): a new folder for every campaign."""
+    """``campaigns/<UTC time>-random-N-seed-S`` (or ``-scene-NAME``): a new folder for every campaign, made
+    here, so that a campaign started in the same second as another (two terminals, a script) gets one of its
+    own (``...-2``); the two shared one folder and its results file."""
     stamp = datetime.now(UTC).strftime("%Y%m%d-%H%M%S")
     what = f"random-{args.random}-seed-{args.seed}" if args.random else f"scene-{Path(args.scene).stem}"
-    return Path("campaigns") / f"{stamp}-{what}"
+    name = f"{stamp}-{what}"
+    Path("campaigns").mkdir(exist_ok=True)
+    folder, n = Path("campaigns") / name, 1
+    while True:
+        try:
+            folder.mkdir()
+            return folder
+        except FileExistsError:
+            n += 1
+            folder = Path("campaigns") / f"{name}-{n}"
 
 
 def _cmd_report(args: argparse.Namespace, config: Config) -> dict[str, Any]:

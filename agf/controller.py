@@ -129,14 +129,22 @@ class Planner(Protocol):
         """Whether a measurement refused with the pallet roughly at ``pallet_in_fork`` may succeed after
         :meth:`view_motion`."""
 
-    def verify(self, measurement: PalletMeasurement, plan: Any) -> str | None:
-        """None when the re-measured pallet is where the aligned forks expect it, else why not."""
+    def withdraw_motion(self, axes_now: Mapping[str, float], plan: Any) -> Motion:
+        """A move back from the pallet along the plan's insertion line, from where a refused verifying
+        measurement is taken again; :class:`AgfError` when there is none."""
+
+    def expected_pallet(self, plan: Any, axes: Mapping[str, float] | None = None) -> Transform:
+        """Where the plan puts the pallet relative to the forks at ``axes`` (the aligned ones by default)."""
+
+    def verify(self, measurement: PalletMeasurement, plan: Any, axes: Mapping[str, float] | None = None) -> str | None:
+        """None when the re-measured pallet is where the forks at ``axes`` (the plan's aligned ones by default)
+        expect it, else why not."""
 
 
 @dataclass(frozen=True)
 class ControllerConfig:
     """Cycle and per-state timeouts (s), how close an axis must come to its target (m or rad), and how
-    many re-plans and viewing moves one pick may make."""
+    many re-plans, viewing moves and withdrawals to verify again one pick may make."""
 
     cycle: float = 0.01
     timeouts: Mapping[str, float] = field(
@@ -155,6 +163,7 @@ class ControllerConfig:
     replans: int = 1
     frame_attempts: int = 3  # a lost or unusable frame is read again, up to this many reads in all
     views: int = 1
+    withdrawals: int = 1
 
 
 @dataclass
@@ -163,7 +172,8 @@ class PickResult:
 
     ``durations`` are per state on the controller's clock (s; simulated seconds in the simulated
     world, where the vision takes none), ``wall_durations`` the same in wall seconds. ``views`` holds
-    why each viewing move was made (the forks hid the pallet).
+    why each viewing move was made (the forks hid the pallet), ``withdrawals`` why the forks withdrew to
+    verify again (the verifying measurement was refused).
     """
 
     ok: bool
@@ -175,6 +185,7 @@ class PickResult:
     log: list[dict[str, Any]]
     wall_durations: dict[str, float] = field(default_factory=dict)
     views: list[str] = field(default_factory=list)
+    withdrawals: list[str] = field(default_factory=list)
 
 
 class PickController:
@@ -184,7 +195,7 @@ class PickController:
         self,
         axes: Mapping[str, Axis],
         frames: FrameSource,
-        measure: Callable[[Frame, PalletMeasurement | None], PalletMeasurement],
+        measure: Callable[[Frame, Transform | None], PalletMeasurement],
         planner: Planner,
         config: ControllerConfig = ControllerConfig(),
         on_cycle: Callable[[Mapping[str, float]], None] | None = None,
@@ -300,22 +311,21 @@ class PickController:
         self.machine.send(event)
         self.recorder.state(self._state(), event, reason)
 
-    def _measure(self, state: str, frame: Frame, prior: PalletMeasurement | None) -> PalletMeasurement:
+    def _measure(self, state: str, frame: Frame, prior: Transform | None) -> PalletMeasurement:
         try:
             measurement = self._timed(self.measure, state, frame, prior)
         except (AgfError, TimeoutError) as exc:
-            self.recorder.measurement(state, frame, None, str(exc))
+            self.recorder.measurement(state, frame, None, str(exc), prior=prior)
             raise
-        self.recorder.measurement(state, frame, measurement)
+        self.recorder.measurement(state, frame, measurement, prior=prior)
         return measurement
 
     def _measure_first(self, result: PickResult, frame: Frame | None) -> tuple[Transform | None, str]:
         """The first measurement of a pick (again after a viewing move). When the forks hide the pallet, or
         the measurement is refused where a move level with the pallet's rough pose would change the view
         (:meth:`Planner.view_helps`), the pose to view it from, as long as the pick has a viewing move left."""
-        prior = result.measurements[-1] if result.measurements else None
-        try:
-            result.measurements.append(self._measure("measuring", frame, prior))
+        try:  # without a prior: the truck knows only its search volume, also after a viewing move
+            result.measurements.append(self._measure("measuring", frame, None))
         except MeasurementError as exc:
             hidden = isinstance(exc, PalletHiddenError)
             if len(result.views) >= self.config.views or exc.pallet_in_fork is None or not (
@@ -369,10 +379,25 @@ class PickController:
                 logger.warning("frame refused (%s); reading again, %d of %d", exc, attempt, self.config.frame_attempts)
 
     def _verify(self, result: PickResult) -> str:
-        frame = self._read_frame()
-        measurement = self._measure("verifying", frame, result.measurements[-1])
+        """Measure from the aligned forks, with the pallet's expected pose as the prior; a refused measurement is
+        taken again from further back along the insertion line (:meth:`Planner.withdraw_motion`) while the pick
+        has a withdrawal left."""
+        axes = None  # the plan's aligned axes
+        while True:
+            frame = self._read_frame()
+            try:
+                measurement = self._measure("verifying", frame, self.planner.expected_pallet(result.plan, axes))
+                break
+            except MeasurementError as exc:
+                if len(result.withdrawals) >= self.config.withdrawals:
+                    raise
+                motion = self.planner.withdraw_motion(self._positions(), result.plan)
+                self.recorder.note("warning", f"verifying: {exc}; withdrawing the forks to measure again")
+                result.withdrawals.append(str(exc))
+                self._follow(motion, "verifying", result)
+                axes = motion.at(motion.duration)
         result.measurements.append(measurement)
-        problem = self.planner.verify(measurement, result.plan)
+        problem = self.planner.verify(measurement, result.plan, axes)
         if problem is not None:
             self.recorder.note("warning", f"verifying: {problem}; planning again")
         return "verified" if problem is None else "replan"

@@ -42,6 +42,10 @@ class PickSettings:
     # the edges of half the refused campaign picks were not found, and level is where the camera sees
     # the pallet best (it verifies from there). Closer than this, the view would hardly change.
     view_min_lift: float = unit("mm", 0.1)
+    # A verifying measurement that is refused is taken again after the forks withdraw this far (reach) back
+    # along their insertion line: the same view gives the same frame, and away from the pallet is the one way
+    # that is clear of it whatever the refusal was about.
+    verify_withdraw: float = unit("mm", 0.05)
 
     def __post_init__(self) -> None:
         if not 0 < self.motion_share <= 1:
@@ -100,11 +104,33 @@ class PickPlanner:
     def _motion_limits(self) -> dict[str, AxisLimits]:
         return {name: a.scaled(self.settings.motion_share) for name, a in self.limits.items()}
 
-    def verify(self, measurement: PalletMeasurement, plan: InsertionPlan) -> str | None:
-        """After aligning, the pallet should be where the plan put it relative to the aligned forks:
-        at the stand-off, level with them and, with no side shift to correct it, as far to the side as
-        first measured. A pallet bumped since (sideways too) is caught here, before inserting."""
-        expected = fork_in_truck_from_axes(plan.align, self.mast).inverse() @ plan.pallet_in_truck
+    def withdraw_motion(self, axes_now: Mapping[str, float], plan: InsertionPlan) -> Trajectory:
+        """The move ``verify_withdraw`` back (reach) along the plan's insertion line from ``axes_now``, so that
+        the insertion from there follows the planned line; :class:`AgfError` when it leaves the axis limits."""
+        travel = plan.insert["reach"] - plan.align["reach"]
+        if travel <= 0:
+            raise AgfError(f"the plan inserts by {travel * 1e3:.0f} mm of reach: there is no line to withdraw along")
+        share = self.settings.verify_withdraw / travel
+        target = {name: axes_now[name] - (plan.insert[name] - plan.align[name]) * share for name in ("reach", "lift")}
+        try:
+            return plan_move(axes_now, target, self._motion_limits(), "phase")
+        except ValueError as exc:
+            raise AgfError(f"no room to withdraw the forks and verify again: {exc}") from exc
+
+    def expected_pallet(self, plan: InsertionPlan, axes: Mapping[str, float] | None = None) -> Transform:
+        """Where ``plan`` puts the pallet relative to the forks at ``axes`` (the plan's aligned ones by default),
+        fork frame: the prior of a verifying measurement, and what it is checked against."""
+        at = plan.align if axes is None else {**plan.align, **axes}
+        return fork_in_truck_from_axes(at, self.mast).inverse() @ plan.pallet_in_truck
+
+    def verify(
+        self, measurement: PalletMeasurement, plan: InsertionPlan, axes: Mapping[str, float] | None = None
+    ) -> str | None:
+        """After aligning, the pallet should be where the plan put it relative to the forks at ``axes`` (the
+        plan's aligned ones by default): at the stand-off, level with them and, with no side shift to correct
+        it, as far to the side as first measured. A pallet bumped since (sideways too) is caught here, before
+        inserting."""
+        expected = self.expected_pallet(plan, axes)
         d = measurement.pallet_in_fork
         pitch = d.euler[1]
         position_error = float(np.linalg.norm(d.translation - expected.translation))

@@ -42,6 +42,7 @@ OPTIONAL = {
     "scene": dict,
     "log": (str, type(None)),
     "viewing_moves": int,
+    "withdrawals": int,
 }
 COLOURS = {"inserted": "tab:green", "refused": "tab:orange", "faulted": "tab:purple", "collided": "tab:red"}
 
@@ -115,6 +116,7 @@ def campaign_figures(results: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
         "faulted": counts["faulted"],
         "collisions": sum(r["collision"] for r in results),
         "viewing_moves": sum(r.get("viewing_moves", 0) for r in results),
+        "withdrawals": sum(r.get("withdrawals", 0) for r in results),
         "measurements_outside_bounds": sum(not within_bounds(e["error"]) for e in measurement_errors(results)),
         "min_clearance_mm": min(clearances) if clearances else None,
         "median_cycle_s": statistics.median(cycles) if cycles else None,
@@ -272,6 +274,13 @@ def _markdown(folder: Path, meta: Mapping[str, Any], results: list[dict[str, Any
             f"Picks that needed a viewing move (the forks hid the pallet, or a refused measurement's confirmed "
             f"pose lay well above or below them, so the lift moved level with it to measure again): {viewed}, "
             f"with {figures['viewing_moves']} moves in all.",
+            "",
+        ]
+    if any("withdrawals" in r for r in results):
+        withdrawn = [r for r in results if r.get("withdrawals", 0) > 0]
+        lines += [
+            f"Picks whose verifying measurement was refused, so that the forks withdrew along their insertion line "
+            f"to measure again: {len(withdrawn)}, of which {sum(r['ok'] for r in withdrawn)} inserted.",
             "",
         ]
     failed = [r for r in results if not r["ok"]]

@@ -168,10 +168,11 @@ class SimulatedWorld:
         calibration = load_calibration(self.config.vision.calibration)
         camera = load_camera(self.config.vision.camera)
 
-        def measure(frame: Frame, prior: PalletMeasurement | None) -> PalletMeasurement:
+        def measure(frame: Frame, prior: Transform | None) -> PalletMeasurement:
             try:
                 measurement = measure_pallet(
-                    frame.image, camera, calibration, self.pallet, self.config.vision.search, forks=self.config.forks
+                    frame.image, camera, calibration, self.pallet, self.config.vision.search, forks=self.config.forks,
+                    prior=prior,
                 ).measurement
             except MeasurementError as exc:
                 self.refusal = str(exc)
@@ -285,6 +286,7 @@ def pick_summary(result: PickResult, world: SimulatedWorld) -> dict[str, Any]:
         "cycle_s": cycle,
         "wall_s": sum(result.wall_durations.values()),
         "viewing_moves": len(result.views),
+        "withdrawals": len(result.withdrawals),
         "durations_s": result.durations,
         "measured": [m.pallet_in_fork.to_dict() for m in result.measurements],
         "truth": [t.to_dict() for t in world.measured_truths[: len(result.measurements)]],

@@ -147,3 +147,24 @@ def test_a_pick_outcome_is_what_ended_it(ok, reason, refusal, plan_safe, clearan
     plan = None if plan_safe is None else SimpleNamespace(safe=plan_safe)
     result = SimpleNamespace(ok=ok, reason=reason, plan=plan)
     assert pick_outcome(result, SimpleNamespace(min_clearance=clearance, refusal=refusal)) == outcome
+
+
+def test_regression_two_campaigns_started_in_the_same_second_get_folders_of_their_own(tmp_path, monkeypatch):
+    """Two `agf simulate --only K` started in one second wrote into one default folder and its results file."""
+    import argparse
+    from datetime import UTC, datetime
+
+    from agf import cli
+
+    class Frozen:
+        @staticmethod
+        def now(tz):
+            return datetime(2026, 11, 26, 2, 45, 38, tzinfo=UTC)
+
+    monkeypatch.setattr(cli, "datetime", Frozen)
+    monkeypatch.chdir(tmp_path)
+    args = argparse.Namespace(random=200, seed=7, scene=None)
+    folders = [cli._campaign_folder(args) for _ in range(3)]
+    name = "20261126-024538-random-200-seed-7"
+    assert [f.name for f in folders] == [name, f"{name}-2", f"{name}-3"]
+    assert all(f.is_dir() for f in folders)

@@ -69,3 +69,43 @@ def test_a_refused_measurement_is_worth_a_view_only_when_the_lift_would_move_far
     assert not planner.view_helps(axes, Transform.from_euler(0.06, 0.0, -0.3, 0.0, 0.0, 0.0))  # tips too close
     low = {"lift": 0.2, "reach": 0.15, "tilt": 0.0}
     assert not planner.view_helps(low, Transform.from_euler(0.3, 0.0, -0.3, 0.0, 0.0, 0.0))  # below the lift's 0
+
+
+def pitched_plan(pitch_deg: float):
+    """A planner and its plan for a pallet 0.4 m ahead of forks at rest, pitched ``pitch_deg``."""
+    from agf.measurement import PalletMeasurement
+    from agf.planner import PickPlanner
+
+    planner = PickPlanner(MAST, FORKS, PALLET, LIMITS)
+    axes = {"lift": 0.6, "reach": 0.15, "tilt": 0.0}
+    pose = Transform.from_euler(0.4, 0.0, -0.05, 0.0, math.radians(pitch_deg), 0.0)
+    plan = planner.plan(PalletMeasurement(pose, pose, False, 0.001, math.radians(0.03)), axes)
+    assert plan.safe, plan.reason
+    return planner, plan
+
+
+@pytest.mark.parametrize("pitch_deg", [-4.0, 0.0, 2.5])
+def test_a_withdrawal_backs_the_forks_off_along_their_insertion_line(pitch_deg):
+    """Refused while verifying, the forks withdraw by verify_withdraw of reach; the insertion from there
+    follows the planned line (lift over reach as planned), and the pallet then lies as far further ahead."""
+    planner, plan = pitched_plan(pitch_deg)
+    motion = planner.withdraw_motion(plan.align, plan)
+    back = motion.at(motion.duration)
+    assert back["reach"] == pytest.approx(plan.align["reach"] - planner.settings.verify_withdraw, abs=1e-9)
+    slope = (plan.insert["lift"] - plan.align["lift"]) / (plan.insert["reach"] - plan.align["reach"])
+    assert (plan.insert["lift"] - back["lift"]) / (plan.insert["reach"] - back["reach"]) == pytest.approx(slope)
+    assert abs(slope) > 0.01 or pitch_deg == 0.0  # the line is pitched with the pallet
+    pallet_in_fork = fork_in_truck_from_axes({**plan.align, **back}, MAST).inverse() @ plan.pallet_in_truck
+    expected = fork_in_truck_from_axes(plan.align, MAST).inverse() @ plan.pallet_in_truck
+    from agf.measurement import PalletMeasurement
+
+    seen = PalletMeasurement(pallet_in_fork, pallet_in_fork, False, 0.001, math.radians(0.03))
+    assert planner.verify(seen, plan, back) is None
+    assert "mm" in planner.verify(seen, plan)  # against the aligned forks, it is 50 mm off
+    assert math.dist(pallet_in_fork.translation, expected.translation) == pytest.approx(0.05, abs=1e-3)
+
+
+def test_a_withdrawal_beyond_the_reach_limit_is_refused_with_the_limit():
+    planner, plan = pitched_plan(0.0)
+    with pytest.raises(AgfError, match="no room to withdraw the forks.*reach.*outside its limits"):
+        planner.withdraw_motion({**plan.align, "reach": 0.02}, plan)

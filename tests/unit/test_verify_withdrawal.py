@@ -1,0 +1,72 @@
+"""A refused verifying measurement: the controller withdraws the forks along the planned line (the
+planner's move) and measures again, once by default; a second refusal ends the pick in FAULT with it.
+
+The controller's logic is the unit here: its axes follow their setpoints at once (test_fleet_pause's),
+the planner's moves are 0.1 m of lift; the planner's own withdrawal is tested in test_viewing_pose."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+from agf.controller import ControllerConfig, PickController
+from agf.errors import MeasurementError
+from tests.unit.test_fleet_pause import BlankCamera, IdealAxis, LiftBy
+
+
+class Withdrawing(LiftBy):
+    """LiftBy whose withdrawal lowers the lift 0.03 m; it records the forks' axes it verified at."""
+
+    def __init__(self) -> None:
+        self.verified_at: list = []
+
+    def plan(self, measurement, axes_now):
+        return SimpleNamespace(safe=True, reason=None, align={"lift": axes_now["lift"] + 0.1})
+
+    def withdraw_motion(self, axes_now, plan):
+        start = axes_now["lift"]
+        return SimpleNamespace(duration=0.05, at=lambda t: {"lift": start - 0.03 * min(t / 0.05, 1.0)})
+
+    def expected_pallet(self, plan, axes=None):
+        return ("where the plan expects the pallet from", axes)
+
+    def verify(self, measurement, plan, axes=None):
+        self.verified_at.append(axes)
+        return None
+
+
+def pick_refusing(verifying_refusals: int, config: ControllerConfig | None = None):
+    """A pick whose first measurement is accepted and whose next ``verifying_refusals`` are refused."""
+    calls = []
+
+    def measure(frame, prior):
+        calls.append(prior)
+        if 1 < len(calls) <= 1 + verifying_refusals:
+            raise MeasurementError(f"refusal {len(calls) - 1} while verifying")
+        return object()
+
+    axis, planner = IdealAxis(), Withdrawing()
+    result = PickController({"lift": axis}, BlankCamera(4, 4), measure, planner, config or ControllerConfig()).run()
+    return result, axis, planner, calls
+
+
+def test_a_refused_verification_is_measured_again_from_the_withdrawn_forks_and_the_pick_goes_on():
+    result, axis, planner, priors = pick_refusing(1)
+    assert result.ok, result.reason
+    assert result.withdrawals == ["refusal 1 while verifying"]
+    assert planner.verified_at == [{"lift": 0.1 - 0.03}]  # verified where the withdrawal ended, not at align
+    expects = "where the plan expects the pallet from"
+    assert priors == [None, (expects, None), (expects, {"lift": 0.1 - 0.03})]  # each search knows where to look
+    assert axis.position == 0.07 + 0.1  # and inserted from there
+
+
+def test_a_second_refusal_ends_the_pick_with_its_reason_and_no_further_motion():
+    result, axis, planner, _ = pick_refusing(2)
+    assert not result.ok and result.state == "fault"
+    assert result.reason == "verifying: refusal 2 while verifying"
+    assert axis.position == 0.07 and planner.verified_at == []
+
+
+def test_with_no_withdrawals_configured_the_first_refusal_ends_the_pick():
+    result, axis, _, _ = pick_refusing(1, ControllerConfig(withdrawals=0))
+    assert result.reason == "verifying: refusal 1 while verifying" and result.withdrawals == []
+    assert axis.position == 0.1
