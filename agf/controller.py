@@ -389,10 +389,9 @@ class PickController:
                 measurement = self._measure("verifying", frame, self.planner.expected_pallet(result.plan, axes))
                 break
             except MeasurementError as exc:
-                if len(result.withdrawals) >= self.config.withdrawals:
+                motion = self._withdrawal(result, exc)
+                if motion is None:
                     raise
-                motion = self.planner.withdraw_motion(self._positions(), result.plan)
-                self.recorder.note("warning", f"verifying: {exc}; withdrawing the forks to measure again")
                 result.withdrawals.append(str(exc))
                 self._follow(motion, "verifying", result)
                 axes = motion.at(motion.duration)
@@ -401,6 +400,19 @@ class PickController:
         if problem is not None:
             self.recorder.note("warning", f"verifying: {problem}; planning again")
         return "verified" if problem is None else "replan"
+
+    def _withdrawal(self, result: PickResult, refusal: MeasurementError) -> Motion | None:
+        """The move back to verify again after ``refusal``; None when the pick has no withdrawal left or the reach
+        no room for one, and the refusal ends the pick (a refusal, not a fault: nothing failed but the view)."""
+        if len(result.withdrawals) >= self.config.withdrawals:
+            return None
+        try:
+            motion = self.planner.withdraw_motion(self._positions(), result.plan)
+        except AgfError as exc:
+            self.recorder.note("warning", f"verifying: {refusal}; not withdrawing to measure again: {exc}")
+            return None
+        self.recorder.note("warning", f"verifying: {refusal}; withdrawing the forks to measure again")
+        return motion
 
     def _insert(self, result: PickResult) -> str:
         self._follow(self.planner.insert_motion(self._positions(), result.plan), "inserting", result)

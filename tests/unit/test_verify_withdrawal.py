@@ -70,3 +70,26 @@ def test_with_no_withdrawals_configured_the_first_refusal_ends_the_pick():
     result, axis, _, _ = pick_refusing(1, ControllerConfig(withdrawals=0))
     assert result.reason == "verifying: refusal 1 while verifying" and result.withdrawals == []
     assert axis.position == 0.1
+
+
+def test_without_room_to_withdraw_the_refusal_ends_the_pick_as_a_refusal_not_a_fault():
+    """Seed 7 campaign picks aligned 10-40 mm from the reach's lower limit: the withdrawal's own error
+    (no room) ended them as faulted; the vision's refusal is what ended them."""
+    from agf.errors import AgfError
+
+    class Cornered(Withdrawing):
+        def withdraw_motion(self, axes_now, plan):
+            raise AgfError("no room to withdraw the forks and verify again: target -0.0397 of axis reach ...")
+
+    calls = []
+
+    def measure(frame, prior):
+        calls.append(prior)
+        if len(calls) > 1:
+            raise MeasurementError("a second line runs beside the unloaded edges")
+        return object()
+
+    axis = IdealAxis()
+    result = PickController({"lift": axis}, BlankCamera(4, 4), measure, Cornered(), ControllerConfig()).run()
+    assert result.reason == "verifying: a second line runs beside the unloaded edges"
+    assert result.withdrawals == [] and axis.position == 0.1 and len(calls) == 2
