@@ -133,9 +133,6 @@ class Planner(Protocol):
         """A move back from the pallet along the plan's insertion line, from where a refused verifying
         measurement is taken again; :class:`AgfError` when there is none."""
 
-    def expected_pallet(self, plan: Any, axes: Mapping[str, float] | None = None) -> Transform:
-        """Where the plan puts the pallet relative to the forks at ``axes`` (the aligned ones by default)."""
-
     def verify(self, measurement: PalletMeasurement, plan: Any, axes: Mapping[str, float] | None = None) -> str | None:
         """None when the re-measured pallet is where the forks at ``axes`` (the plan's aligned ones by default)
         expect it, else why not."""
@@ -195,7 +192,7 @@ class PickController:
         self,
         axes: Mapping[str, Axis],
         frames: FrameSource,
-        measure: Callable[[Frame, Transform | None], PalletMeasurement],
+        measure: Callable[[Frame, PalletMeasurement | None], PalletMeasurement],
         planner: Planner,
         config: ControllerConfig = ControllerConfig(),
         on_cycle: Callable[[Mapping[str, float]], None] | None = None,
@@ -311,21 +308,22 @@ class PickController:
         self.machine.send(event)
         self.recorder.state(self._state(), event, reason)
 
-    def _measure(self, state: str, frame: Frame, prior: Transform | None) -> PalletMeasurement:
+    def _measure(self, state: str, frame: Frame, prior: PalletMeasurement | None) -> PalletMeasurement:
         try:
             measurement = self._timed(self.measure, state, frame, prior)
         except (AgfError, TimeoutError) as exc:
-            self.recorder.measurement(state, frame, None, str(exc), prior=prior)
+            self.recorder.measurement(state, frame, None, str(exc))
             raise
-        self.recorder.measurement(state, frame, measurement, prior=prior)
+        self.recorder.measurement(state, frame, measurement)
         return measurement
 
     def _measure_first(self, result: PickResult, frame: Frame | None) -> tuple[Transform | None, str]:
         """The first measurement of a pick (again after a viewing move). When the forks hide the pallet, or
         the measurement is refused where a move level with the pallet's rough pose would change the view
         (:meth:`Planner.view_helps`), the pose to view it from, as long as the pick has a viewing move left."""
-        try:  # without a prior: the truck knows only its search volume, also after a viewing move
-            result.measurements.append(self._measure("measuring", frame, None))
+        prior = result.measurements[-1] if result.measurements else None
+        try:
+            result.measurements.append(self._measure("measuring", frame, prior))
         except MeasurementError as exc:
             hidden = isinstance(exc, PalletHiddenError)
             if len(result.views) >= self.config.views or exc.pallet_in_fork is None or not (
@@ -379,14 +377,13 @@ class PickController:
                 logger.warning("frame refused (%s); reading again, %d of %d", exc, attempt, self.config.frame_attempts)
 
     def _verify(self, result: PickResult) -> str:
-        """Measure from the aligned forks, with the pallet's expected pose as the prior; a refused measurement is
-        taken again from further back along the insertion line (:meth:`Planner.withdraw_motion`) while the pick
-        has a withdrawal left."""
+        """Measure from the aligned forks; a refused measurement is taken again from further back along the
+        insertion line (:meth:`Planner.withdraw_motion`) while the pick has a withdrawal left."""
         axes = None  # the plan's aligned axes
         while True:
             frame = self._read_frame()
             try:
-                measurement = self._measure("verifying", frame, self.planner.expected_pallet(result.plan, axes))
+                measurement = self._measure("verifying", frame, result.measurements[-1])
                 break
             except MeasurementError as exc:
                 motion = self._withdrawal(result, exc)

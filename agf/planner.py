@@ -117,12 +117,6 @@ class PickPlanner:
         except ValueError as exc:
             raise AgfError(f"no room to withdraw the forks and verify again: {exc}") from exc
 
-    def expected_pallet(self, plan: InsertionPlan, axes: Mapping[str, float] | None = None) -> Transform:
-        """Where ``plan`` puts the pallet relative to the forks at ``axes`` (the plan's aligned ones by default),
-        fork frame: the prior of a verifying measurement, and what it is checked against."""
-        at = plan.align if axes is None else {**plan.align, **axes}
-        return fork_in_truck_from_axes(at, self.mast).inverse() @ plan.pallet_in_truck
-
     def verify(
         self, measurement: PalletMeasurement, plan: InsertionPlan, axes: Mapping[str, float] | None = None
     ) -> str | None:
@@ -130,7 +124,8 @@ class PickPlanner:
         plan's aligned ones by default): at the stand-off, level with them and, with no side shift to correct
         it, as far to the side as first measured. A pallet bumped since (sideways too) is caught here, before
         inserting."""
-        expected = self.expected_pallet(plan, axes)
+        at = plan.align if axes is None else {**plan.align, **axes}
+        expected = fork_in_truck_from_axes(at, self.mast).inverse() @ plan.pallet_in_truck
         d = measurement.pallet_in_fork
         pitch = d.euler[1]
         position_error = float(np.linalg.norm(d.translation - expected.translation))

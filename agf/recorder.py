@@ -118,7 +118,6 @@ SCHEMAS: dict[str, dict[str, Any]] = {
         frame={"type": "integer", "description": "sequence number of the frame on /camera/image"},
         ok={"type": "boolean"}, refusal={"type": ["string", "null"]},
         pallet_in_fork=_POSE, pallet_in_camera=_POSE, loaded={"type": "boolean"},
-        prior_in_fork={**_POSE, "description": "where the pallet was expected (verifying), the search's prior"},
         scores={"type": "object"}, uncertainty={"type": "object", "description": "z_mm, pitch_deg (1 sigma)"},
         timing_ms={"type": "object"},
     ),
@@ -168,11 +167,9 @@ def transform_message(ns: int, parent: str, child: str, child_in_parent: Transfo
 
 
 def measurement_message(stage: str, frame: int, measurement: PalletMeasurement | None,
-                        refusal: str | None, prior: Transform | None = None) -> dict[str, Any]:
-    """The ``agf.Measurement`` message of one measurement (mm and degrees), with the prior it was given."""
+                        refusal: str | None) -> dict[str, Any]:
+    """The ``agf.Measurement`` message of one measurement (mm and degrees)."""
     message: dict[str, Any] = {"stage": stage, "frame": frame, "ok": measurement is not None, "refusal": refusal}
-    if prior is not None:
-        message["prior_in_fork"] = prior.to_dict()
     if measurement is not None:
         message.update(
             pallet_in_fork=measurement.pallet_in_fork.to_dict(),
@@ -238,9 +235,8 @@ class Recorder:
         """A frame the controller acquired."""
 
     def measurement(self, stage: str, frame: Frame, measurement: PalletMeasurement | None,
-                    refusal: str | None = None, *, prior: Transform | None = None) -> None:
-        """The measurement of ``frame`` at ``stage`` (measuring or verifying), or why it was refused, and the
-        pallet pose it was given as its prior (fork frame), if any."""
+                    refusal: str | None = None) -> None:
+        """The measurement of ``frame`` at ``stage`` (measuring or verifying), or why it was refused."""
 
     def plan(self, plan: Any) -> None:
         """The insertion plan: axis targets and the safety check (:class:`agf.insertion.InsertionPlan`)."""
@@ -325,9 +321,9 @@ class McapRecorder(Recorder):
         self._write("/camera/image", image, now, sequence=frame.index)
 
     def measurement(self, stage: str, frame: Frame, measurement: PalletMeasurement | None,
-                    refusal: str | None = None, *, prior: Transform | None = None) -> None:
+                    refusal: str | None = None) -> None:
         now = time.time_ns()
-        self._write("/measurement", measurement_message(stage, frame.index, measurement, refusal, prior), now)
+        self._write("/measurement", measurement_message(stage, frame.index, measurement, refusal), now)
         if measurement is None:
             self._log("error", f"{stage}: measurement refused: {refusal}", now)
             return

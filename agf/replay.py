@@ -5,8 +5,7 @@ model and the pallet catalogue as attachments, the calibration, pallet type, sea
 as metadata), so a folder of logs from trucks is a regression test on real frames: a change to the
 vision that moves a measurement shows here as a difference.
 
-Each frame is measured with the prior the pick gave it (the pallet's expected pose when verifying, none for
-the first measurement), as the log records it. Frames are
+The pick measured without a prior (as the simulated world does), and so does the replay. Frames are
 logged losslessly (PNG), so with unchanged code the replay reproduces the logged measurement to the
 last digit; :data:`TOLERANCE_MM` and :data:`TOLERANCE_DEG` only absorb floating-point noise.
 """
@@ -24,7 +23,7 @@ import numpy as np
 from agf.camera import load_camera
 from agf.config import Config, ForkGeometry, SearchVolume
 from agf.errors import InputError, MeasurementError
-from agf.geometry import Transform, transform_from_dict
+from agf.geometry import Transform
 from agf.pallets import load_pallets, pallet_type
 from agf.recorder import SETUP, LoggedMessage, MeasurementSetup, PickLog, decode_frame, read_log
 from agf.vision.measure import MeasureDetail, measure_pallet
@@ -66,9 +65,9 @@ class _Measurer:
         self.camera = load_camera(setup.camera_file)
         self.pallet = pallet_type(load_pallets(setup.pallets_file), setup.pallet_type)
 
-    def __call__(self, image: np.ndarray, prior: Transform | None = None) -> MeasureDetail:
+    def __call__(self, image: np.ndarray) -> MeasureDetail:
         s = self.setup
-        return measure_pallet(image, self.camera, s.camera_in_fork, self.pallet, s.search, forks=s.forks, prior=prior)
+        return measure_pallet(image, self.camera, s.camera_in_fork, self.pallet, s.search, forks=s.forks)
 
 
 def compare(logged: dict[str, Any], replayed: MeasureDetail | None, refusal: str | None) -> dict[str, Any]:
@@ -121,8 +120,7 @@ def replay_log(log: PickLog, plots: Path | None = None) -> dict[str, Any]:
         frame = frames.get(message.data["frame"])
         if frame is None:
             raise InputError(f"{log.path}: measurement of frame {message.data['frame']} but no such frame logged")
-        prior = message.data.get("prior_in_fork")
-        detail, refusal = _measure(measure, frame, None if prior is None else transform_from_dict(prior))
+        detail, refusal = _measure(measure, frame)
         rows.append(compare(message.data, detail, refusal))
         details.append((frame, detail))
     result: dict[str, Any] = {
@@ -139,16 +137,14 @@ def replay_log(log: PickLog, plots: Path | None = None) -> dict[str, Any]:
     return result
 
 
-def _measure(
-    measure: _Measurer, frame: LoggedMessage, prior: Transform | None = None
-) -> tuple[MeasureDetail | None, str | None]:
+def _measure(measure: _Measurer, frame: LoggedMessage) -> tuple[MeasureDetail | None, str | None]:
     image = decode_frame(frame)
     camera = measure.camera
     if image.shape[:2] != (camera.height, camera.width):
         raise InputError(f"frame {frame.sequence} is {image.shape[1]} x {image.shape[0]}, the logged camera model's "
                          f"frames are {camera.width} x {camera.height}")
     try:
-        return measure(image, prior), None
+        return measure(image), None
     except MeasurementError as exc:
         return None, str(exc)
 

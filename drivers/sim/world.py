@@ -168,11 +168,10 @@ class SimulatedWorld:
         calibration = load_calibration(self.config.vision.calibration)
         camera = load_camera(self.config.vision.camera)
 
-        def measure(frame: Frame, prior: Transform | None) -> PalletMeasurement:
+        def measure(frame: Frame, prior: PalletMeasurement | None) -> PalletMeasurement:
             try:
                 measurement = measure_pallet(
-                    frame.image, camera, calibration, self.pallet, self.config.vision.search, forks=self.config.forks,
-                    prior=prior,
+                    frame.image, camera, calibration, self.pallet, self.config.vision.search, forks=self.config.forks
                 ).measurement
             except MeasurementError as exc:
                 self.refusal = str(exc)

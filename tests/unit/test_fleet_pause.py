@@ -62,9 +62,6 @@ class LiftBy:
 
     insert_motion = align_motion
 
-    def expected_pallet(self, plan, axes=None):
-        return None
-
     def verify(self, measurement, plan, axes=None):
         return None
 
