@@ -41,4 +41,5 @@ def light_pick(seed: int, index: int, interrupt_at: int | None = None) -> dict:
         "truth": [truth] if outcome != "refused" else [],
         "scene": scene_summary(scene),
         "viewing_moves": int(truth["z_mm"] < -200),
+        "withdrawals": int(index % 5 == 0),
     }
