@@ -92,20 +92,26 @@ def _cmd_simulate(args: argparse.Namespace, config: Config) -> dict[str, Any]:
         raise InputError("--resume: give --out CAMPAIGN_DIR, the folder of the campaign to finish")
     if args.only is not None and (args.random is None or not 0 <= args.only < args.random):
         raise InputError(f"--only: expected a pick number 0..N-1 of --random N, got {args.only}")
-    return _plugin(config, "simulate")(
-        config,
-        scene=scene,
-        runs=args.random,
-        seed=args.seed,
-        plots=args.plots,
-        jobs=args.jobs,
-        backend=args.backend,
-        address=args.address,
-        out=args.out or str(_campaign_folder(args)),
-        resume=args.resume,
-        indices=None if args.only is None else [args.only],
-        progress=not args.json,
-    )
+    folder = None if args.out else _campaign_folder(args)
+    try:
+        return _plugin(config, "simulate")(
+            config,
+            scene=scene,
+            runs=args.random,
+            seed=args.seed,
+            plots=args.plots,
+            jobs=args.jobs,
+            backend=args.backend,
+            address=args.address,
+            out=args.out or str(folder),
+            resume=args.resume,
+            indices=None if args.only is None else [args.only],
+            progress=not args.json,
+        )
+    except BaseException:
+        if folder is not None and not any(folder.iterdir()):
+            folder.rmdir()  # a campaign that never started (no Ray, a bad config) leaves no folder behind
+        raise
 
 
 def _campaign_folder(args: argparse.Namespace) -> Path:

@@ -95,12 +95,15 @@ def test_a_pick_that_crashes_is_a_fault_with_its_reason(tmp_path):
     assert summary["faulted"] == 1 and "crashed: ZeroDivisionError" in summary["failures"][0]["reason"]
 
 
-def test_ray_backend_without_ray_is_not_available(monkeypatch, capsys):
+def test_ray_backend_without_ray_is_not_available(monkeypatch, capsys, tmp_path):
+    """Refused with the install command, and the default campaign folder made for it is gone again."""
     monkeypatch.setitem(sys.modules, "ray", None)
+    monkeypatch.chdir(tmp_path)
     with pytest.raises(NotAvailableError, match=r"pip install -e '.\[cluster\]'"):
         make_backend("ray")
     assert main(["simulate", "--random", "1", "--backend", "ray", "--json"]) == EXIT_UNAVAILABLE
     assert "needs Ray" in json.loads(capsys.readouterr().out)["error"]
+    assert list((tmp_path / "campaigns").iterdir()) == []
 
 
 def test_resume_needs_the_campaign_folder_and_address_needs_ray(capsys):
