@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import cv2
@@ -37,7 +38,7 @@ def search_edges(
     image: NDArray[np.float32],
     starts: Array,
     normals: Array,
-    radius: float,
+    radius: float | Array,
     step: float = 0.25,
     *,
     either_polarity: bool = False,
@@ -45,28 +46,70 @@ def search_edges(
     """Find, along each unit image normal (N, 2), the strongest bright-to-dark step within ``radius`` px
     (with ``either_polarity``, the strongest step of either sign: which side is brighter depends on light).
 
-    The profile is sampled bilinearly (``cv2.remap``) from ``image`` (smooth it first), differentiated,
-    and the extremum refined by a parabola through its neighbours.
+    ``radius`` is one for all points or one per point (N,). The profile is sampled bilinearly
+    (``cv2.remap``) from ``image`` (smooth it first), differentiated, and the extremum refined by a parabola
+    through its neighbours; an extremum at either end of a point's range is no edge. A multi-channel
+    ``image`` (H, W, C) needs ``either_polarity``: the step is the largest of the channels' (scale them to a
+    common noise first).
     """
-    t = np.arange(-radius, radius + step / 2, step, dtype=np.float64)
+    if image.ndim == 3 and not either_polarity:
+        raise ValueError(f"a {image.shape[2]}-channel image has no single polarity: search it with either_polarity")
+    if len(starts) == 0:
+        return EdgeSearch(np.zeros(0), np.zeros(0), np.zeros(0, bool))
+    reach = np.broadcast_to(np.asarray(radius, dtype=np.float64), (len(starts),))
+    t = np.arange(-reach.max(initial=0.0), reach.max(initial=0.0) + step / 2, step, dtype=np.float64)
     u = (starts[:, 0:1] + normals[:, 0:1] * t).astype(np.float32)
     v = (starts[:, 1:2] + normals[:, 1:2] * t).astype(np.float32)
-    profile = cv2.remap(image, u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
-    slope = -np.gradient(profile, step, axis=1)  # positive where intensity falls along the normal
+    profile = _sample(image, u, v)
+    slope = _falling_slope(profile, step)
     if either_polarity:
-        slope = np.abs(slope)
-    best = np.argmax(slope[:, 1:-1], axis=1) + 1  # an extremum on the border is no edge
-    rows = np.arange(len(best))
-    inner = (best > 0) & (best < len(t) - 1)
+        # the channels one at a time: numpy reduces a short last axis slowly (half the search's time in colour)
+        slope = np.abs(slope) if slope.ndim == 2 else functools.reduce(np.maximum, np.abs(np.moveaxis(slope, 2, 0)))
+    slope = slope.astype(np.float64)
+    rows, index = np.arange(len(starts)), np.arange(len(t))
+    first = np.searchsorted(t, -reach - 1e-9)  # each point's range of samples
+    last = np.searchsorted(t, reach + 1e-9, side="right") - 1
+    interior = (index > first[:, None]) & (index < last[:, None])
+    best = np.argmax(np.where(interior, slope, -np.inf), axis=1)
+    inner = interior[rows, best]
     left = slope[rows, np.clip(best - 1, 0, None)]
     centre = slope[rows, best]
     right = slope[rows, np.clip(best + 1, None, len(t) - 1)]
     curvature = left - 2 * centre + right
     with np.errstate(divide="ignore", invalid="ignore"):
         shift = np.where(inner & (curvature < 0), 0.5 * (left - right) / curvature, 0.0)
-    inside = (u >= 0) & (v >= 0) & (u <= image.shape[1] - 1) & (v <= image.shape[0] - 1)
-    valid = inner & np.all(inside, axis=1) & (centre > np.maximum(slope[:, 0], slope[:, -1]))
+    # a straight profile lies in the (convex) image when both its ends do
+    inside = np.ones(len(starts), bool)
+    for end in (first, last):
+        inside &= (u[rows, end] >= 0) & (v[rows, end] >= 0) & (u[rows, end] <= image.shape[1] - 1)
+        inside &= v[rows, end] <= image.shape[0] - 1
+    ends = np.maximum(slope[rows, first], slope[rows, last])
+    valid = inner & inside & (centre > ends)
     return EdgeSearch(t[best] + shift * step, np.where(valid, centre, 0.0), valid)
+
+
+_REMAP_ROWS = 32766  # cv2.remap's maps must have fewer than SHRT_MAX (32767) rows
+
+
+def _sample(image: NDArray[np.float32], u: NDArray[np.float32], v: NDArray[np.float32]) -> NDArray[np.float32]:
+    """``image`` sampled bilinearly at (``u``, ``v``) (N, T), in blocks of rows that ``cv2.remap`` takes: the
+    face-edge check of a 2 m wide face with its rival poses reaches 40,000 profiles."""
+    return np.concatenate([
+        cv2.remap(image, u[k : k + _REMAP_ROWS], v[k : k + _REMAP_ROWS], cv2.INTER_LINEAR,
+                  borderMode=cv2.BORDER_REPLICATE)
+        for k in range(0, len(u), _REMAP_ROWS)
+    ])
+
+
+def _falling_slope(profile: NDArray[np.float32], step: float) -> NDArray[np.float32]:
+    """Minus the derivative of ``profile`` (N, T) or (N, T, C) along its second axis (per ``step`` px): central
+    differences inside, one-sided at the ends (as ``np.gradient``); positive where intensity falls. OpenCV's
+    filter runs 5-10 times faster than ``np.gradient`` on a colour profile."""
+    kernel = np.array([[0.5, 0.0, -0.5]], np.float32) / step
+    slope = cv2.filter2D(profile, cv2.CV_32F, kernel, borderType=cv2.BORDER_REPLICATE)
+    slope[:, 0] = (profile[:, 0] - profile[:, 1]) / step
+    slope[:, -1] = (profile[:, -2] - profile[:, -1]) / step
+    return slope
 
 
 def project_with_normals(

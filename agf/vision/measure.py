@@ -129,7 +129,8 @@ def measure_pallet(
     start = time.perf_counter()
     timing: dict[str, float] = {}
     gray = grey_from_bgr(image)
-    colour = image if image.ndim == 3 else None  # the pitch's edges beside clipped light are read in it
+    colour = image if image.ndim == 3 else None  # the pitch's edges beside clipped light are read in it,
+    # and the face's edges where a channel shows them better than grey (face_edge_agreement)
     gray_f = gray.astype(np.float32)  # the pose search's working copy, made once for all its calls
     face = face_model_from_pallet(pallet)
     search = narrow = config.pose  # the pose search of the current attempt; set for each similarity below
@@ -151,7 +152,7 @@ def measure_pallet(
             return pose
         t = time.perf_counter()
         options = [pose, *pose.depths]
-        agreed = face_edge_agreement(gray, camera, camera_in_fork, [o.pallet_in_fork for o in options], face, forks,
+        agreed = face_edge_agreement(image, camera, camera_in_fork, [o.pallet_in_fork for o in options], face, forks,
                                      config.edges)
         timing["edges"] = timing.get("edges", 0.0) + (time.perf_counter() - t) * 1e3
         best = max(range(len(options)), key=lambda k: agreed[k].score)
@@ -278,7 +279,7 @@ def measure_pallet(
         try:
             for candidate in poses:
                 try:
-                    agreement = check_face_edges(gray, camera, camera_in_fork, candidate.pallet_in_fork, face, forks,
+                    agreement = check_face_edges(image, camera, camera_in_fork, candidate.pallet_in_fork, face, forks,
                                                  config.edges)
                 except MeasurementError as exc:
                     refusals.append(exc)
@@ -297,7 +298,7 @@ def measure_pallet(
         one of those is a move on a guess."""
         if pose is None:
             return None
-        [agreed] = face_edge_agreement(gray, camera, camera_in_fork, [pose.pallet_in_fork], face, forks, config.edges)
+        [agreed] = face_edge_agreement(image, camera, camera_in_fork, [pose.pallet_in_fork], face, forks, config.edges)
         return pose.pallet_in_fork if agreed.score >= config.edges.min_score else None
 
     starts = [prior.euler[1]] if prior is not None else [0.0, -volume.pitch_max / 2, volume.pitch_max / 2]
