@@ -226,7 +226,7 @@ def measure_pallet(
                 pitch, led, step = lead, True, 0.0
                 pose = pose_again(pose, pitch, first)
                 continue
-            chosen = _choose(evidence)
+            chosen = _choose(evidence, config.pitch)
             change = chosen.pitch - pitch
             pitch, swung = next_pitch(pitch, chosen.pitch, step)
             swing = max(swing, swung)
@@ -371,10 +371,19 @@ def _distance(a: Transform, b: Transform) -> float:
     return float(math.dist(a.translation, b.translation))
 
 
-def _choose(evidence: dict[str, PitchEvidence]) -> PitchEvidence:
+def _choose(evidence: dict[str, PitchEvidence], config: PitchConfig) -> PitchEvidence:
+    """The unloaded hypothesis when it is valid, else the loaded one unless the deck's edges show past a load (see
+    :attr:`PitchConfig.max_deck_under_load`); else :class:`MeasurementError` with why neither gives the pitch."""
     if evidence["unloaded"].valid:
         return evidence["unloaded"]
     if evidence["loaded"].valid:
+        deck = evidence["unloaded"].ratio
+        if deck > config.max_deck_under_load:
+            raise MeasurementError(
+                f"no trustworthy pitch: the load's edges were found, and so were the top deck's side edges over "
+                f"{deck:.0%} of their length, which a load hides (at most {config.max_deck_under_load:.0%}); the lines "
+                "may not be a load's (rack uprights behind the pallet); refusing rather than guessing"
+            )
         return evidence["loaded"]
     noted = [e.note for e in evidence.values() if e.note]
     if noted:

@@ -211,6 +211,14 @@ def test_many_tight_lines_on_the_load_face_give_the_pitch_where_the_load_edges_d
     assert measurement.loaded
 
 
+def test_regression_uprights_behind_an_unloaded_pallet_are_not_taken_for_a_load():
+    """Rack uprights behind the back corners of an unloaded pallet pitched 2.4 deg were taken for a load's edges
+    and accepted as its pitch, the world's vertical, 2.36 deg off; the top deck's side edges showed over 42 % of
+    their length, which a load hides (campaign seed 7, pick 35, the forks 150 mm lower)."""
+    with pytest.raises(MeasurementError, match="so were the top deck's side edges over"):
+        measure_random_look("fixed-wrong-accepts/campaign-7-pick-35-forks-150-lower")
+
+
 def test_face_pose_far_from_deck_edges_on_other_lines_is_measured():
     """The deck edges, found on other lines, put the pallet 18 mm from its face's match, which was 1 mm from
     the truth; the image confirms the face's pose (its edges agree) and not theirs (1%). A far fallback is
