@@ -31,6 +31,7 @@ from agf.vision.face_model import FaceModel
 from agf.vision.pallet_pose import hidden_by_forks
 
 GROUPS = {0: "pocket tops", 1: "pocket bottoms", 2: "pocket sides", 3: "face top", 4: "face bottom", 5: "face ends"}
+_AHEAD = 0.003  # m along each edge point's normal: the point projected there gives the normal's image direction
 
 
 @dataclass(frozen=True)
@@ -99,12 +100,13 @@ def face_edge_agreement(
     points, normals, groups = (np.concatenate([a, b]) for a, b in zip(pocket, outline, strict=True))
     fork_in_camera = camera_in_fork.inverse()
     all_points = np.concatenate([(fork_in_camera @ T).apply(points) for T in poses_in_fork])
-    ahead = np.concatenate([(fork_in_camera @ T).apply(points + 0.003 * normals) for T in poses_in_fork])
+    ahead = np.concatenate([(fork_in_camera @ T).apply(points + _AHEAD * normals) for T in poses_in_fork])
     pixels, valid = camera.project(np.concatenate([all_points, ahead]))
     pixels, ahead_px, valid = pixels[: len(all_points)], pixels[len(all_points) :], valid[: len(all_points)]
     directions = ahead_px - pixels
-    px_per_m = np.linalg.norm(directions, axis=1) / 0.003
-    directions /= np.maximum(px_per_m[:, None] * 0.003, 1e-12)
+    length = np.linalg.norm(directions, axis=1)
+    directions /= np.maximum(length[:, None], 1e-12)
+    px_per_m = length / _AHEAD
     # Each edge is searched no further than halfway to the next parallel edge of the face: a pocket top seen from
     # above lies 4-5 px below the face's top edge, which is the stronger step, and was "not found" on true poses.
     gaps = np.tile(_parallel_gaps(points, normals, config.spacing), len(poses_in_fork))
@@ -134,14 +136,14 @@ def check_face_edges(
 ) -> EdgeAgreement:
     """The pose's :class:`EdgeAgreement`, or :class:`MeasurementError` when its face edges are not in the
     image, the face moved within its plane by a board or a block (or along the line of sight, or turned by a
-    degree in yaw) explains them better, or its upright edges, which fix its size, do not agree by themselves. The error
-    carries the pose's own :class:`EdgeAgreement` in ``found``."""
-    centre = pallet_in_fork.apply(np.array([0.0, 0.0, (face.z_bottom + face.z_top) / 2]))
+    degree in yaw) explains them better, or its upright edges, which fix its size, do not agree by themselves.
+    The error carries the pose's own :class:`EdgeAgreement` in ``found``."""
+    pivot = np.array([0.0, 0.0, (face.z_bottom + face.z_top) / 2])  # the face's centre, pallet frame
+    centre = pallet_in_fork.apply(pivot)
     sight = (centre - camera_in_fork.translation) / np.linalg.norm(centre - camera_in_fork.translation)
     moves = [pallet_in_fork.apply_direction(np.array([0.0, dy, dz])) for dy, dz in config.shifts]
     moves += [d * sight for d in config.depth_shifts]
     shifted = [Transform(pallet_in_fork.rotation, pallet_in_fork.translation + move) for move in moves]
-    pivot = np.array([0.0, 0.0, (face.z_bottom + face.z_top) / 2])
     for yaw in config.yaw_shifts:
         turn = Transform.from_euler(0.0, 0.0, 0.0, 0.0, 0.0, yaw)
         shifted.append(pallet_in_fork @ Transform(np.eye(3), pivot) @ turn @ Transform(np.eye(3), -pivot))
