@@ -26,7 +26,7 @@ from agf.camera.base import CameraModel
 from agf.config import ForkGeometry
 from agf.errors import MeasurementError
 from agf.geometry import Transform
-from agf.vision.edges import search_edges
+from agf.vision.edges import mad_sigma, search_edges
 from agf.vision.face_model import FaceModel
 from agf.vision.pallet_pose import hidden_by_forks
 
@@ -232,7 +232,7 @@ def _gradient_noise(smooth: NDArray[np.float32]) -> NDArray[np.float32]:
     gx = cv2.Sobel(smooth, cv2.CV_32F, 1, 0, ksize=3) / 8.0  # Sobel's 3 x 3 kernel sums to 8 per px of slope
     gy = cv2.Sobel(smooth, cv2.CV_32F, 0, 1, ksize=3) / 8.0
     magnitude = np.hypot(gx, gy)[::2, ::2]
-    spread = 1.4826 * np.median(np.abs(magnitude - np.median(magnitude, axis=(0, 1))), axis=(0, 1))
+    spread = mad_sigma(magnitude, axis=(0, 1))
     return np.maximum(spread, 0.5).astype(np.float32)
 
 

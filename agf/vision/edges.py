@@ -15,6 +15,13 @@ from agf.geometry import Transform
 Array = NDArray[np.float64]
 
 
+def mad_sigma(values: NDArray, axis: int | tuple[int, ...] | None = None) -> NDArray | np.floating:
+    """Robust standard deviation of ``values`` along ``axis``: 1.4826 times the median absolute deviation,
+    which is the standard deviation for normal noise and ignores the few large values that edges give."""
+    centre = np.median(values, axis=axis, keepdims=True)
+    return 1.4826 * np.median(np.abs(values - centre), axis=axis)
+
+
 @dataclass(frozen=True)
 class EdgeSearch:
     """Result of :func:`search_edges` for N points.

@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 from agf.camera.base import CameraModel
 from agf.geometry import Transform
 from agf.pallets import PalletType
+from agf.vision.edges import mad_sigma
 from agf.vision.hough import SphereLine, common_direction, fit_plane_normal, hough_line, refine_line
 from agf.vision.panorama import Panorama, render_panorama
 
@@ -740,7 +741,7 @@ def _edge_points(
     # The statistics of the gradient, from every 4th row and column: the full sort cost 15 ms a panorama.
     sample, sampled_valid = gx[::4, ::4], valid[::4, ::4]
     inside = sample[sampled_valid]
-    noise = 1.4826 * np.median(np.abs(inside - np.median(inside))) if inside.size else 0.0
+    noise = float(mad_sigma(inside)) if inside.size else 0.0
     threshold = max(6.0 * noise, 0.2 * float(np.percentile(sample, 99)), 1e-3)
     centre = gx[:, 1:-1]
     peak = (centre > gx[:, :-2]) & (centre >= gx[:, 2:]) & (centre > 0.5 * threshold)  # not in the outer columns

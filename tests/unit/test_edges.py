@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from agf.vision.edges import _falling_slope, search_edges
+from agf.vision.edges import _falling_slope, mad_sigma, search_edges
 
 WIDTH, HEIGHT = 120, 60
 
@@ -116,3 +116,13 @@ def test_regression_more_profiles_than_opencv_remap_takes_in_one_call():
 def test_falling_slope_is_minus_numpys_gradient(shape):
     profile = np.random.default_rng(17).uniform(0, 255, shape).astype(np.float32)
     np.testing.assert_allclose(_falling_slope(profile, 0.25), -np.gradient(profile, 0.25, axis=1), atol=1e-3)
+
+
+def test_mad_sigma_is_the_noise_sigma_per_channel_and_ignores_edges():
+    rng = np.random.default_rng(11)
+    noise = rng.normal(0.0, [1.0, 2.0, 4.0], size=(200, 200, 3))
+    noise[:, 100:102] += 500.0  # an edge: a few large values
+    sigma = mad_sigma(noise, axis=(0, 1))
+    assert sigma.shape == (3,)
+    np.testing.assert_allclose(sigma, [1.0, 2.0, 4.0], rtol=0.03)
+    assert abs(float(mad_sigma(noise[..., 0].ravel())) - 1.0) < 0.03
