@@ -285,4 +285,3 @@ def test_regression_a_pose_fitted_out_of_the_search_volume_is_refused(rendered):
     with pytest.raises(MeasurementError, match=r"measured at z [\d.]+ mm, outside the search volume"):
         measure_pallet(image, load_camera(scene.camera), scene.camera_in_fork, CATALOGUE[scene.pallet.type], volume,
                        forks=CONFIG.forks)
-
