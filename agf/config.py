@@ -246,6 +246,12 @@ class SearchVolume:
         require_positive("yaw_max_deg", self.yaw_max)
         require_positive("pitch_max_deg", self.pitch_max)
 
+    def lifted(self, lift: float) -> SearchVolume:
+        """This volume after the forks rose by ``lift`` (m), for a volume anchored to the floor rather than to the
+        forks (a fleet pick's ``height`` narrows it at the forks' height when the pick starts): the pallet stays
+        where it is, so in the fork frame its z range moves down by ``lift``."""
+        return dataclasses.replace(self, z_min=self.z_min - lift, z_max=self.z_max - lift)
+
 
 @dataclass(frozen=True)
 class VisionConfig:

@@ -43,6 +43,7 @@ class PickRequest:
     search: SearchVolume
     load_id: str | None = None
     depth: float | None = None
+    height: float | None = None  # the pallet's underside above the floor; ``search`` was narrowed to it
 
 
 def pick_request(
@@ -113,6 +114,7 @@ def pick_request(
         search=search,
         load_id=given.get("loadId"),
         depth=None if depth is None else float(depth),
+        height=None if "height" not in given else float(given["height"]),
     )
 
 

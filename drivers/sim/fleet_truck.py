@@ -60,6 +60,8 @@ class SimulatedFleetTruck(FleetTruck):
                 vision=dataclasses.replace(self.config.vision, search=request.search),
                 sections=self._sections(request),
             )
+            if request.height is not None:  # request.search was narrowed at the forks' height now
+                world.search_fork_height = self.fork_height()
             self.world = world
             self.sessions += 1
             yield world.controller(progress)

@@ -26,7 +26,7 @@ import numpy as np
 
 from agf.camera import load_camera
 from agf.clock import Clock, SimulatedClock, WallClock
-from agf.config import Config, load_calibration
+from agf.config import Config, SearchVolume, load_calibration
 from agf.controller import ControllerConfig, PickController, PickResult
 from agf.errors import ConfigError, DriveFault, MeasurementError
 from agf.frames import Frame, FrameSource
@@ -103,6 +103,9 @@ class SimulatedWorld:
         self.frame_truths: list[Transform] = []  # the true pallet_in_fork of each rendered frame
         self.measured_truths: list[Transform] = []  # ... of each frame measured successfully
         self.refusal: str | None = None  # why the last measurement was refused, None when it was not
+        # The fork height (m, truck frame) vision.search was narrowed at when it is anchored to the floor (a fleet
+        # pick's height), None when it moves with the forks (the configured volume).
+        self.search_fork_height: float | None = None
         self.min_clearance = math.inf
         self.inside = False
         self._tines = tine_surface(config.forks)
@@ -126,6 +129,19 @@ class SimulatedWorld:
 
     def positions(self) -> dict[str, float]:
         return {name: axis.feedback().position for name, axis in self.axes.items()}
+
+    def fork_height(self) -> float:
+        """Height of the fork frame's origin in the truck frame now (m)."""
+        return float(fork_in_truck_from_axes(self.positions(), self.mast).translation[2])
+
+    def search(self) -> SearchVolume:
+        """The volume the vision searches now, in the fork frame: one anchored to the floor moves down as the
+        forks rise (after aligning, a fleet pick's pallet sits level with the forks, far below where the forks
+        started)."""
+        search = self.config.vision.search
+        if self.search_fork_height is None:
+            return search
+        return search.lifted(self.fork_height() - self.search_fork_height)
 
     def scene_now(self) -> Scene:
         return self.scene_at(self.positions())
@@ -171,7 +187,7 @@ class SimulatedWorld:
         def measure(frame: Frame, prior: PalletMeasurement | None) -> PalletMeasurement:
             try:
                 measurement = measure_pallet(
-                    frame.image, camera, calibration, self.pallet, self.config.vision.search, forks=self.config.forks
+                    frame.image, camera, calibration, self.pallet, self.search(), forks=self.config.forks
                 ).measurement
             except MeasurementError as exc:
                 self.refusal = str(exc)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import re
 import shutil
 from pathlib import Path
@@ -77,6 +78,18 @@ def test_height_narrows_the_vertical_search_around_the_pallet_it_implies():
     assert clipped.z_max == CONFIG.vision.search.z_max
     with pytest.raises(ValueError, match="outside the search volume"):
         search_at_height(CONFIG.vision.search, pallet, 3.0, 0.65, 0.1)
+
+
+def test_regression_a_height_narrowed_search_follows_the_forks_as_they_rise():
+    """CI, session 23: a fleet pick with a ``height`` was refused at verifying, "measured at z 0.0 mm, outside the
+    search volume (z 127..327 mm)": the volume narrowed at the forks' start height stayed put in the fork frame
+    while the forks rose level with the pallet."""
+    pallet = load_pallets(CONFIG.vision.pallets)["jis-t11"]
+    at_start = search_at_height(CONFIG.vision.search, pallet, 0.800, 0.65, 0.1)
+    aligned = at_start.lifted(0.227)  # the forks rose by the face centre's height above them
+    assert (aligned.z_min, aligned.z_max) == (pytest.approx(-0.1), pytest.approx(0.1))
+    assert dataclasses.astuple(aligned.lifted(-0.227)) == pytest.approx(dataclasses.astuple(at_start))
+    assert (aligned.x_min, aligned.x_max, aligned.pitch_max) == (at_start.x_min, at_start.x_max, at_start.pitch_max)
 
 
 def test_incoming_messages_are_checked_against_the_shipped_schemas():
