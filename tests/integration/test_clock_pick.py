@@ -245,8 +245,18 @@ def test_regression_campaign_pick_22_of_seed_7_accepts_no_measurement_outside_bo
 # Pick 49's came after a viewing move on a rough pose the image did not confirm; no such move is made now. Picks 52
 # (a loaded pallet pitched 4.4 deg: its load edges and face lines agree 0.21 deg off) and 177 (a verifying frame
 # 0.43 deg off, then refused) joined on 2026-11-26, and pick 159 the same day: its verifying frame, refused before,
-# was accepted 0.1004 deg off once the face's edges were read in colour.
-OPEN_CAMPAIGN_WRONG_ACCEPTS = (38, 52, 55, 139, 159, 177)
+# was accepted 0.1004 deg off once the face's edges were read in colour. Picks 52 and 177 were fixed on 2026-11-26
+# (session 24): test_regression_campaign_picks_of_seed_7_with_a_loose_pitch_accept_no_measurement_outside_bounds.
+OPEN_CAMPAIGN_WRONG_ACCEPTS = (38, 55, 139, 159)
+
+
+@pytest.mark.parametrize("index", (52, 177))
+def test_regression_campaign_picks_of_seed_7_with_a_loose_pitch_accept_no_measurement_outside_bounds(index):
+    """Pick 52 accepted a loaded pallet pitched 4.4 deg 0.21 deg off (its load edges and face lines agreeing, from
+    the search started 3 deg away), pick 177 a verifying frame 0.43 deg off (2026-11-26). Both stated a pitch
+    standard deviation over 0.05 deg; a measurement must now give one within it (MeasureConfig.max_sigma_pitch,
+    half the bound), and both picks are refused."""
+    assert_no_measurement_outside_bounds(7, index)
 
 
 @pytest.mark.parametrize("index", (42, 120))
