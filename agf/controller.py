@@ -19,8 +19,7 @@ When the forks hide the pallet from the camera (a :class:`agf.errors.PalletHidde
 controller does not give up: VIEWING moves the forks, lift only, level with the pallet's pockets
 where the camera sees them past the tines, and the pick acquires and measures again. A measurement
 refused for another reason gets the same move (``unclear``) when its search roughly placed the pallet
-far enough above or below the forks that the view from level differs (:meth:`Planner.view_helps`), and one
-refused without a rough pose gets a step of the lift (:meth:`Planner.view_motion` with None).
+far enough above or below the forks that the view from level differs (:meth:`Planner.view_helps`).
 
 Time comes from an injected :class:`agf.clock.Clock`: motion timeouts and the stream of setpoints
 read it (simulated time in the simulated world, where the vision takes none), and the vision's
@@ -122,9 +121,9 @@ class Planner(Protocol):
 
     def insert_motion(self, axes_now: Mapping[str, float], plan: Any) -> Motion: ...
 
-    def view_motion(self, axes_now: Mapping[str, float], pallet_in_fork: Transform | None) -> Motion:
-        """A move that lets the camera see the pallet (roughly at ``pallet_in_fork``; None: not placed) past
-        the forks, or from elsewhere, clear of it; :class:`AgfError` when there is none."""
+    def view_motion(self, axes_now: Mapping[str, float], pallet_in_fork: Transform) -> Motion:
+        """A move that lets the camera see the pallet (roughly at ``pallet_in_fork``) past the forks,
+        clear of it; :class:`AgfError` when there is none."""
 
     def view_helps(self, axes_now: Mapping[str, float], pallet_in_fork: Transform) -> bool:
         """Whether a measurement refused with the pallet roughly at ``pallet_in_fork`` may succeed after
@@ -255,7 +254,7 @@ class PickController:
             "inserting": self._insert,
         }
         frame: Frame | None = None
-        view_of: Transform | None = None  # the rough pose a viewing move is planned for, None: a step of the lift
+        view_of: Transform | None = None  # the rough pose a viewing move is planned for
         replans = 0
         while (state := self._state()) not in ("done", "fault"):
             start, wall_start = self.clock.monotonic(), time.perf_counter()
@@ -321,15 +320,14 @@ class PickController:
     def _measure_first(self, result: PickResult, frame: Frame | None) -> tuple[Transform | None, str]:
         """The first measurement of a pick (again after a viewing move). When the forks hide the pallet, or
         the measurement is refused where a move level with the pallet's rough pose would change the view
-        (:meth:`Planner.view_helps`), the pose to view it from; when it is refused without a rough pose, None
-        (:meth:`Planner.view_motion` then steps the lift); each as long as the pick has a viewing move left."""
+        (:meth:`Planner.view_helps`), the pose to view it from, as long as the pick has a viewing move left."""
         prior = result.measurements[-1] if result.measurements else None
         try:
             result.measurements.append(self._measure("measuring", frame, prior))
         except MeasurementError as exc:
             hidden = isinstance(exc, PalletHiddenError)
-            if len(result.views) >= self.config.views or not (
-                exc.pallet_in_fork is None or hidden or self.planner.view_helps(self._positions(), exc.pallet_in_fork)
+            if len(result.views) >= self.config.views or exc.pallet_in_fork is None or not (
+                hidden or self.planner.view_helps(self._positions(), exc.pallet_in_fork)
             ):
                 raise
             result.views.append(str(exc))

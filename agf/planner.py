@@ -42,12 +42,6 @@ class PickSettings:
     # the edges of half the refused campaign picks were not found, and level is where the camera sees
     # the pallet best (it verifies from there). Closer than this, the view would hardly change.
     view_min_lift: float = unit("mm", 0.1)
-    # A measurement refused without a rough pose (or with one the forks are already level with) is tried again
-    # with the lift this far lower, or higher where the lower limit stops it: the view changes while reach and
-    # tilt keep the tips where they are along the truck, behind the pallet's front face. On the refused first
-    # frames of campaign seed 7 picks 0-99, 14 of 56 were measured within the bounds from 150 mm lower, 7 from
-    # 150 mm higher (one wrong each).
-    view_step: float = unit("mm", 0.15)
     # A verifying measurement that is refused is taken again after the forks withdraw this far (reach) back
     # along their insertion line: the same view gives the same frame, and away from the pallet is the one way
     # that is clear of it whatever the refusal was about.
@@ -88,15 +82,11 @@ class PickPlanner:
         target = {name: plan.insert[name] for name in ("reach", "lift")}
         return plan_move(axes_now, target, self._motion_limits(), "phase")
 
-    def view_motion(self, axes_now: Mapping[str, float], pallet_in_fork: Transform | None) -> Trajectory:
-        """The move to :func:`viewing_axes` (the forks hid the pallet roughly at ``pallet_in_fork``), or to
-        :func:`stepped_viewing_axes` when the refused measurement did not place the pallet (None)."""
-        if pallet_in_fork is None:
-            target = stepped_viewing_axes(axes_now, self.limits, self.settings.view_step)
-        else:
-            target = viewing_axes(
-                pallet_in_fork, axes_now, self.mast, self.forks, self.pallet, self.limits, self.settings.view_clearance
-            )
+    def view_motion(self, axes_now: Mapping[str, float], pallet_in_fork: Transform) -> Trajectory:
+        """The move to :func:`viewing_axes` (the forks hid the pallet roughly at ``pallet_in_fork``)."""
+        target = viewing_axes(
+            pallet_in_fork, axes_now, self.mast, self.forks, self.pallet, self.limits, self.settings.view_clearance
+        )
         return plan_move(axes_now, target, self._motion_limits(), "time")
 
     def view_helps(self, axes_now: Mapping[str, float], pallet_in_fork: Transform) -> bool:
@@ -145,29 +135,6 @@ class PickPlanner:
                 "from where the forks expect it"
             )
         return None
-
-
-def stepped_viewing_axes(
-    axes_now: Mapping[str, float], limits: Mapping[str, AxisLimits], step: float
-) -> dict[str, float]:
-    """Axis targets for another view of a pallet whose pose a refused measurement did not give: the lift
-    ``step`` (m) lower, or higher where that leaves the lift's limits.
-
-    Only the lift moves, so the fork tips keep their place along the truck, behind the pallet's front face
-    (the approach stops the truck with the face at least ``vision.search`` x_min in front of them).
-
-    Raises
-    ------
-    AgfError
-        If the lift can go neither way by ``step``.
-    """
-    for lift in (axes_now["lift"] - step, axes_now["lift"] + step):
-        if limits["lift"].contains(lift):
-            return {**axes_now, "lift": lift}
-    raise AgfError(
-        f"no other view: the lift {step * 1e3:.0f} mm lower or higher than {axes_now['lift'] * 1e3:.0f} mm leaves "
-        f"its limits [{limits['lift'].minimum * 1e3:.0f}, {limits['lift'].maximum * 1e3:.0f}] mm"
-    )
 
 
 def viewing_axes(

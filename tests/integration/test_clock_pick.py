@@ -196,25 +196,6 @@ def test_a_refused_measurement_far_above_the_forks_is_measured_again_from_level_
     assert all(abs(row["actual"]["reach"] - start["reach"]) < 1e-4 for row in viewing)
 
 
-def test_a_measurement_refused_without_a_rough_pose_is_taken_again_a_lift_step_lower_and_the_pick_inserts():
-    """Campaign pick 3 of seed 7: refused from the start pose without a pose the image confirms, so no view
-    level with the pallet; the lift steps down insertion.view_step (150 mm), reach and tilt stay, and from
-    there it is measured and picked. (Should the vision one day measure it from the start pose, this test
-    needs another such pick: it tests the stepped view, not that refusal.)"""
-    from drivers.sim.world import campaign_scene
-
-    scene = campaign_scene(load_scene(repo_path("configs/scenes/pick.yaml")), 7, 3)
-    with SimulatedWorld(CONFIG, scene) as world:
-        start = world.positions()
-        result = world.controller().run()
-        summary = pick_summary(result, world)
-    assert result.ok, result.reason
-    assert len(result.views) == 1 and summary["viewing_moves"] == 1 and not summary["collision"]
-    viewing = [row for row in result.log if row["state"] == "viewing"]
-    assert viewing[-1]["actual"]["lift"] - start["lift"] == pytest.approx(-0.15, abs=0.002)
-    assert all(abs(row["actual"][axis] - start[axis]) < 1e-4 for row in viewing for axis in ("reach", "tilt"))
-
-
 def assert_no_measurement_outside_bounds(seed: int, index: int) -> None:
     """Run campaign pick ``index`` of ``seed``: every measurement it accepts lies within the bounds (pitch
     0.1 deg, z 5 mm, x 10 mm)."""

@@ -13,7 +13,7 @@ from agf.geometry import Transform
 from agf.kinematics import MastGeometry, fork_in_truck_from_axes
 from agf.pallets import load_pallets
 from agf.paths import repo_path
-from agf.planner import stepped_viewing_axes, viewing_axes
+from agf.planner import viewing_axes
 
 MAST, FORKS = MastGeometry(), ForkGeometry()
 PALLET = load_pallets(repo_path("configs/pallets.yaml"))["jis-t11"]
@@ -69,19 +69,6 @@ def test_a_refused_measurement_is_worth_a_view_only_when_the_lift_would_move_far
     assert not planner.view_helps(axes, Transform.from_euler(0.06, 0.0, -0.3, 0.0, 0.0, 0.0))  # tips too close
     low = {"lift": 0.2, "reach": 0.15, "tilt": 0.0}
     assert not planner.view_helps(low, Transform.from_euler(0.3, 0.0, -0.3, 0.0, 0.0, 0.0))  # below the lift's 0
-
-
-@pytest.mark.parametrize(("lift", "expected"), [(0.6, 0.45), (0.1, 0.25), (2.9, 2.75)])
-def test_a_refusal_without_a_rough_pose_steps_the_lift_down_or_up_where_the_limit_stops_it(lift, expected):
-    axes = {"lift": lift, "reach": 0.15, "tilt": math.radians(2.0)}
-    target = stepped_viewing_axes(axes, LIMITS, 0.15)
-    assert target == {**axes, "lift": pytest.approx(expected)}  # reach and tilt stay: the tips keep their place
-
-
-def test_a_lift_step_beyond_both_limits_is_refused_with_the_limits():
-    tight = {**LIMITS, "lift": AxisLimits(0.5, 0.7, 0.4, 0.8, 4.0)}
-    with pytest.raises(AgfError, match=r"150 mm lower or higher than 600 mm leaves its limits \[500, 700\] mm"):
-        stepped_viewing_axes({"lift": 0.6, "reach": 0.15, "tilt": 0.0}, tight, 0.15)
 
 
 def pitched_plan(pitch_deg: float):
