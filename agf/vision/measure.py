@@ -72,7 +72,7 @@ class MeasureConfig:
     # deg, all three found by a search started 3 deg from the pitch; the cap refused them and 9 of 182 right ones.
     # Capping only those searches' poses kept 5 of the 9 but let two wrong ones through that the first search had
     # found (0.13 deg off at 0.052, paper scene loaded-middle-front-up under look 4; 0.43 deg at 0.055, campaign
-    # seed 7 pick 177's verifying frame). In `agf simulate --random 200 --seed 7` the cap cost 12 of 79 inserted
+    # seed 7 pick 177's verifying frame). In `agf simulate --random 200 --seed 7` the cap cost 9 of 73 inserted
     # picks (each pick is measured twice or more).
     max_sigma_pitch: float = math.radians(0.05)
     # The deck edges fix y, z and yaw of an unloaded pallet (pose_from_deck_edges). When they move the
