@@ -25,6 +25,7 @@ from matplotlib.ticker import MaxNLocator
 
 from agf.errors import InputError
 from agf.vision.accuracy import BOUNDS, within_bounds
+from agf.vision.measure import OTHER_SEARCHES
 
 CAMPAIGN_FILE, RESULTS_FILE, REPORT_FILE = "campaign.json", "results.jsonl", "report.md"
 OUTCOMES = ("inserted", "refused", "faulted", "collided")
@@ -126,8 +127,10 @@ def campaign_figures(results: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
 
 def reason_class(reason: str | None) -> str:
     """A reason with its numbers replaced by ``#``, so refusals of one kind count together (numbers inside
-    words, such as ``0x8130`` or ``cia402``, are part of the kind)."""
-    return re.sub(r"(?<![\w.])[-+]?\d+(\.\d+)?(?!\w)", "#", reason or "(no reason given)")
+    words, such as ``0x8130`` or ``cia402``, are part of the kind); of a refused measurement, the first
+    search's reason only (what the other searches found made every refusal a kind of its own)."""
+    first = (reason or "(no reason given)").split(OTHER_SEARCHES, 1)[0]
+    return re.sub(r"(?<![\w.+])[-+]?\d+(\.\d+)?(?!\w)", "#", first)  # "+-0.07" keeps its "+-"
 
 
 def measurement_errors(results: Iterable[Mapping[str, Any]]) -> list[dict[str, Any]]:

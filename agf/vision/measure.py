@@ -389,6 +389,10 @@ def check_in_volume(pallet_in_fork: Transform, volume: SearchVolume) -> None:
             )
 
 
+# Where a refusal's message goes on from its first search's reason to the other searches' (:func:`_refusal`)
+OTHER_SEARCHES = " (with the pose searched at pitch "
+
+
 def _refusal(
     failures: list[MeasurementError], volume: SearchVolume, similarities: Sequence[str], found: Findings,
     rough: Transform | None,
@@ -399,7 +403,7 @@ def _refusal(
     out of the view may then give a measurement."""
     reasons = [str(f) for f in failures]
     others = sorted(set(reasons[1:]) - {reasons[0]})
-    also = (f" (with the pose searched at pitch +-{math.degrees(volume.pitch_max / 2):.1f} deg and by "
+    also = (f"{OTHER_SEARCHES}+-{math.degrees(volume.pitch_max / 2):.1f} deg and by "
             f"{' and '.join(similarities[1:])} too" if others else "")
     message = reasons[0] + (also + ": " + "; ".join(others) + ")" if others else "")
     hidden = next((f for f in failures if isinstance(f, PalletHiddenError)), None)

@@ -71,6 +71,20 @@ def test_the_report_counts_outcomes_and_tables_reasons(folder):
     assert sorted(int(row[0]) for row in failures) == [r["run"] for r in records if not r["ok"]]
 
 
+def test_refused_measurements_count_by_their_first_search_s_reason():
+    """Before, every refusal was a row of its own: the other searches' reasons, appended to the first's, differ."""
+    from agf.report import reason_class
+    from agf.vision.measure import OTHER_SEARCHES
+
+    first = "measuring: no pitch: neither the deck edges (unloaded, ratio {}) nor the load edges (loaded, ratio 0.3)"
+    tails = [f"{OTHER_SEARCHES}+-3.0 deg and by regions too: ambiguous pallet)",
+             f"{OTHER_SEARCHES}+-3.0 deg and by regions too: pocket edges fit poorly; no pitch)", ""]
+    ratios = ("0.12", "0.2", "0.4")
+    kinds = {reason_class(first.format(ratio) + tail) for ratio, tail in zip(ratios, tails, strict=True)}
+    assert kinds == {first.format("#").replace("0.3", "#")}
+    assert reason_class("the deck edges give it only to +-0.058 deg") == "the deck edges give it only to +-# deg"
+
+
 def test_failure_rows_link_their_recorder_file_when_there_is_one(folder):
     write_report(folder)
     links = {int(row[0]): row[-1] for row in table_rows((folder / "report.md").read_text(), "Failures")}
