@@ -321,9 +321,10 @@ def measure_pallet(
                                      depths=0)
         try:
             pose, chosen, evidence = converged(assumed)
+            # before the face-edge check, which costs 50 ms and cannot change the pitch's sigma
+            check_pitch_sigma(chosen.hypothesis, chosen.sigma, config.max_sigma_pitch)
             placed = [onto_deck_edges(pose, chosen)] if chosen.hypothesis == "unloaded" and chosen.placed else []
             pose, agreement = confirmed(placed + [pose])
-            check_pitch_sigma(chosen.hypothesis, chosen.sigma, config.max_sigma_pitch)
             if prior is None:
                 check_in_volume(pose.pallet_in_fork, volume)
             break
