@@ -296,6 +296,23 @@ def test_regression_a_face_matched_at_0_82_of_its_distance_is_searched_again_alo
                        config=MeasureConfig(depth_probes=()))
 
 
+def test_regression_a_load_face_whose_lines_fix_the_pitch_to_0_02_deg_gives_it_despite_a_second_load_edge():
+    """Campaign seed 7, pick 173 (loaded, pitch -1.84 deg): a second line beside a load edge made the edges give two
+    pitches, and 12 lines on the load's face, fewer than the 15 that counted alone, gave it to +-0.02 deg: refused.
+    Lines that fix the pitch to PitchConfig.face_alone_tight now count alone, however many."""
+    from agf.vision.measure import MeasureConfig
+    from agf.vision.pitch import PitchConfig
+
+    scene, image = campaign_first_frame(7, 173)
+    pallet, camera = CATALOGUE[scene.pallet.type], load_camera(scene.camera)
+    detail = measure_pallet(image, camera, scene.camera_in_fork, pallet, CONFIG.vision.search, forks=CONFIG.forks)
+    assert detail.measurement.loaded
+    assert within_bounds(errors(scene, detail.measurement)), errors(scene, detail.measurement)
+    with pytest.raises(MeasurementError, match="second line runs beside the loaded edges"):
+        measure_pallet(image, camera, scene.camera_in_fork, pallet, CONFIG.vision.search, forks=CONFIG.forks,
+                       config=MeasureConfig(pitch=PitchConfig(face_alone_tight=0.0)))
+
+
 def test_regression_a_pose_fitted_out_of_the_search_volume_is_refused(rendered):
     """Campaign seed 7, pick 35 seen from forks 150 mm lower: a face match at the volume's top was fitted on to
     z 577 mm, 77 mm above the volume, and accepted (2.4 deg off in pitch). Here the volume ends 2 mm below the
