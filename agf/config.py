@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
+import numpy as np
 import yaml
 
 from agf.errors import ConfigError
@@ -245,6 +246,16 @@ class SearchVolume:
             require_range(f"{axis}_mm", getattr(self, f"{axis}_min"), getattr(self, f"{axis}_max"))
         require_positive("yaw_max_deg", self.yaw_max)
         require_positive("pitch_max_deg", self.pitch_max)
+
+    @property
+    def low(self) -> np.ndarray:
+        """The volume's lower corner (x, y, z), m, shape (3,)."""
+        return np.array([self.x_min, self.y_min, self.z_min])
+
+    @property
+    def high(self) -> np.ndarray:
+        """The volume's upper corner (x, y, z), m, shape (3,)."""
+        return np.array([self.x_max, self.y_max, self.z_max])
 
     def lifted(self, lift: float) -> SearchVolume:
         """This volume after the forks rose by ``lift`` (m), for a volume anchored to the floor rather than to the

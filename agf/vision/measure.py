@@ -402,8 +402,8 @@ def check_in_volume(pallet_in_fork: Transform, volume: SearchVolume) -> None:
         Naming the coordinate, its value and the volume's limits (``vision.search`` in the configuration).
     """
     yaw, pitch, _ = pallet_in_fork.euler
-    limits = [(axis, "mm", value * 1e3, getattr(volume, f"{axis}_min") * 1e3, getattr(volume, f"{axis}_max") * 1e3)
-              for axis, value in zip("xyz", pallet_in_fork.translation, strict=True)]
+    position = zip("xyz", pallet_in_fork.translation, volume.low, volume.high, strict=True)
+    limits = [(axis, "mm", value * 1e3, low * 1e3, high * 1e3) for axis, value, low, high in position]
     limits += [(name, "deg", math.degrees(value), -math.degrees(bound), math.degrees(bound))
                for name, value, bound in (("yaw", yaw, volume.yaw_max), ("pitch", pitch, volume.pitch_max))]
     for name, unit, value, low, high in limits:

@@ -332,8 +332,7 @@ class _Box:
 
 def _search_box(volume: SearchVolume, prior: Transform | None, pitch: float, config: PoseSearchConfig) -> _Box:
     if prior is None:
-        low = np.array([volume.x_min, volume.y_min, volume.z_min])
-        high = np.array([volume.x_max, volume.y_max, volume.z_max])
+        low, high = volume.low, volume.high
         yaw_low, yaw_high = -volume.yaw_max, volume.yaw_max
     else:
         centre = prior.translation

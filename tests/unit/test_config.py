@@ -1,10 +1,11 @@
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
-from agf.config import load_calibration, load_config
+from agf.config import SearchVolume, load_calibration, load_config
 from agf.errors import ConfigError
 from agf.pallets import load_pallets, pallet_type
 from agf.paths import REPO_ROOT
@@ -104,3 +105,12 @@ def test_pallet_overlapping_blocks_are_refused(tmp_path):
         load_pallets(path)
     with pytest.raises(ConfigError, match="unknown pallet type 'nope'"):
         pallet_type(load_pallets(CONFIGS / "pallets.yaml"), "nope")
+
+
+def test_search_volume_corners_follow_its_limits_and_a_lift():
+    volume = SearchVolume(x_min=0.2, x_max=0.7, y_min=-0.1, y_max=0.2, z_min=-0.3, z_max=0.4)
+    np.testing.assert_array_equal(volume.low, [0.2, -0.1, -0.3])
+    np.testing.assert_array_equal(volume.high, [0.7, 0.2, 0.4])
+    lifted = volume.lifted(0.25)
+    np.testing.assert_allclose(lifted.low, [0.2, -0.1, -0.55])
+    np.testing.assert_allclose(lifted.high, [0.7, 0.2, 0.15])
