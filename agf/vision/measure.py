@@ -96,12 +96,6 @@ class MeasureConfig:
     # upright edges fix the face's size, hence its depth). Campaign seed 7, pick 18: the face plus a deck board
     # matched 0.60 at 200 mm nearer, the face 0.55 at its true depth.
     depth_lead: float = 0.1
-    # Where the image does not confirm the face edges of the search's pose, the face is searched again nearby at
-    # these fractions of its distance (each search covers +-PoseSearchConfig.prior_window of 40 mm, about 5 % of
-    # the distance): on 374 randomised first frames, 34 refused ones had matched along the right line of sight
-    # but at 0.81-0.86 (most), 0.91, 1.05-1.07, 1.18 or 1.42-1.5 of the true distance, at 0.2-0.4 face-edge
-    # agreement where the truth agreed 0.7-0.9 (the face plus the top deck seen from above is a larger face).
-    depth_probes: tuple[float, ...] = (0.7, 0.8, 0.9, 1.1, 1.2, 1.3)
 
 
 @dataclass(frozen=True)
@@ -160,36 +154,18 @@ def measure_pallet(
         timing["pose"] = timing.get("pose", 0.0) + (time.perf_counter() - t) * 1e3
         return estimate
 
-    def agreements(options: list[PoseEstimate]) -> list[EdgeAgreement]:
+    def by_depth(pose: PoseEstimate) -> PoseEstimate:
+        """The estimate or one of its other depths (:attr:`PoseEstimate.depths`), whichever's face edges agree
+        best, by :attr:`MeasureConfig.depth_lead` over the estimate's own."""
+        if not pose.depths:
+            return pose
         t = time.perf_counter()
+        options = [pose, *pose.depths]
         agreed = face_edge_agreement(image, camera, camera_in_fork, [o.pallet_in_fork for o in options], face, forks,
                                      config.edges)
         timing["edges"] = timing.get("edges", 0.0) + (time.perf_counter() - t) * 1e3
-        return agreed
-
-    def by_depth(pose: PoseEstimate, pitch: float) -> PoseEstimate:
-        """The estimate or one of its other depths, whichever's face edges agree best, by
-        :attr:`MeasureConfig.depth_lead` over the estimate's own: the depths the search returned
-        (:attr:`PoseEstimate.depths`), and, when the image does not confirm the estimate's face edges,
-        the face searched again nearby at :attr:`MeasureConfig.depth_probes` of its distance."""
-        options = [pose, *pose.depths]
-        agreed = agreements(options)
-        if agreed[0].score < config.edges.min_score and config.depth_probes:
-            probes = [p for p in (probe_at(pose, ratio, pitch) for ratio in config.depth_probes) if p is not None]
-            options += probes
-            agreed += agreements(probes) if probes else []
         best = max(range(len(options)), key=lambda k: agreed[k].score)
         return options[best] if agreed[best].score - agreed[0].score >= config.depth_lead else pose
-
-    def probe_at(pose: PoseEstimate, ratio: float, pitch: float) -> PoseEstimate | None:
-        """The face searched near ``pose`` moved along its line of sight to ``ratio`` of its distance; None when
-        nothing fits there. Its margin is the estimate's: the wide search judged the rivals elsewhere."""
-        eye = camera_in_fork.translation
-        moved = Transform(pose.pallet_in_fork.rotation, eye + ratio * (pose.pallet_in_fork.translation - eye))
-        try:
-            return dataclasses.replace(pose_at(moved, pitch, narrow), margin=pose.margin)
-        except MeasurementError:
-            return None
 
     def pose_again(pose: PoseEstimate, pitch: float, first: PoseEstimate) -> PoseEstimate:
         """The pose at a new pitch: refined from the last one (11 ms; the search nearby took 22), but
@@ -256,7 +232,7 @@ def measure_pallet(
         )
 
     def converged(pitch: float) -> tuple[PoseEstimate, PitchEvidence, dict[str, PitchEvidence]]:
-        first = pose = by_depth(pose_at(prior, pitch, search), pitch)
+        first = pose = by_depth(pose_at(prior, pitch, search))
         seen.setdefault("pose", first)
         step = swing = 0.0
         evidence = None

@@ -274,28 +274,6 @@ def test_regression_a_face_matched_with_a_deck_board_nearer_along_the_line_of_si
     assert within_bounds(errors(scene, detail.measurement)), errors(scene, detail.measurement)
 
 
-def test_regression_a_face_matched_at_0_82_of_its_distance_is_searched_again_along_the_line_of_sight():
-    """Campaign seed 7, pick 176: every search matched the face 194 mm nearer and 151 mm higher, along the same line
-    of sight at 0.82 of the true distance, and returned no other depth; its face edges agreed 25 %, the truth's 82 %,
-    and the frame was refused for want of deck edges. Where the image does not confirm a match's face edges, the face
-    is now searched again at MeasureConfig.depth_probes of its distance, and the edges decide."""
-    from agf.vision.face_model import face_model_from_pallet
-    from agf.vision.measure import MeasureConfig
-    from agf.vision.pallet_pose import estimate_pallet_pose
-
-    scene, image = campaign_first_frame(7, 176)
-    pallet, camera, truth = CATALOGUE[scene.pallet.type], load_camera(scene.camera), scene.pallet.in_fork.translation
-    estimate = estimate_pallet_pose(image, camera, scene.camera_in_fork, face_model_from_pallet(pallet),
-                                    CONFIG.vision.search, forks=CONFIG.forks, check=False)
-    assert math.dist(estimate.pallet_in_fork.translation, truth) > 0.1  # the similarity alone is wrong here
-    assert all(math.dist(d.pallet_in_fork.translation, truth) > 0.1 for d in estimate.depths)
-    detail = measure_pallet(image, camera, scene.camera_in_fork, pallet, CONFIG.vision.search, forks=CONFIG.forks)
-    assert within_bounds(errors(scene, detail.measurement)), errors(scene, detail.measurement)
-    with pytest.raises(MeasurementError):  # without the probes, refused as before
-        measure_pallet(image, camera, scene.camera_in_fork, pallet, CONFIG.vision.search, forks=CONFIG.forks,
-                       config=MeasureConfig(depth_probes=()))
-
-
 def test_regression_a_load_face_whose_lines_fix_the_pitch_to_0_02_deg_gives_it_despite_a_second_load_edge():
     """Campaign seed 7, pick 173 (loaded, pitch -1.84 deg): a second line beside a load edge made the edges give two
     pitches, and 12 lines on the load's face, fewer than the 15 that counted alone, gave it to +-0.02 deg: refused.
