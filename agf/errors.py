@@ -25,6 +25,11 @@ class InputError(AgfError, ValueError):
     """A command-line argument or an input file (image, JSON) is unusable."""
 
 
+# Where a refusal's message goes on from its first search's reason to the other searches' (the vision's
+# ``_refusal``); campaign reports group refusals by the text before it.
+OTHER_SEARCHES = " (with the pose searched at pitch "
+
+
 class MeasurementError(AgfError):
     """The vision could not produce a trustworthy measurement; the message says why.
 

@@ -23,9 +23,8 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
-from agf.errors import InputError
+from agf.errors import OTHER_SEARCHES, InputError
 from agf.vision.accuracy import BOUNDS, within_bounds
-from agf.vision.measure import OTHER_SEARCHES
 
 CAMPAIGN_FILE, RESULTS_FILE, REPORT_FILE = "campaign.json", "results.jsonl", "report.md"
 OUTCOMES = ("inserted", "refused", "faulted", "collided")

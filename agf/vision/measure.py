@@ -17,14 +17,14 @@ import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NoReturn
 
 import numpy as np
 from numpy.typing import NDArray
 
 from agf.camera import CameraModel
 from agf.config import ForkGeometry, SearchVolume
-from agf.errors import MeasurementError, PalletHiddenError
+from agf.errors import OTHER_SEARCHES, MeasurementError, PalletHiddenError
 from agf.geometry import Transform
 from agf.measurement import PalletMeasurement
 from agf.pallets import PalletType
@@ -211,7 +211,7 @@ def measure_pallet(
         t = time.perf_counter()
         edges_of = unloaded_evidence if chosen.hypothesis == "unloaded" else loaded_evidence
         yaw, _, roll = pose.pallet_in_fork.euler
-        again_valid = []
+        settled = False
         for offset in (-config.pitch_probe, config.pitch_probe):
             probe = Transform.from_euler(*pose.pallet_in_fork.translation, roll, chosen.pitch + offset, yaw)
             again = edges_of(gray, camera, camera_in_fork, pallet, probe, config.pitch, colour=colour)
@@ -220,12 +220,12 @@ def measure_pallet(
             if other:
                 unsettled(chosen, ", ".join(f"{math.degrees(p):.2f}" for p in other) + " deg",
                           f"from {math.degrees(offset):+.1f} deg beside it")
-            again_valid.append(again.valid)
-        if not any(again_valid):
+            settled = settled or again.valid
+        if not settled:
             unsettled(chosen, "no pair of edges", f"from {math.degrees(config.pitch_probe):.1f} deg either side")
         timing["pitch"] = timing.get("pitch", 0.0) + (time.perf_counter() - t) * 1e3
 
-    def unsettled(chosen: PitchEvidence, found: str, where: str) -> None:
+    def unsettled(chosen: PitchEvidence, found: str, where: str) -> NoReturn:
         raise MeasurementError(
             f"the {chosen.hypothesis} edges do not settle on one pitch: {math.degrees(chosen.pitch):.2f} deg "
             f"measured, {found} when searched {where}; refusing rather than guessing"
@@ -399,10 +399,6 @@ def check_in_volume(pallet_in_fork: Transform, volume: SearchVolume) -> None:
                 f"the pallet was measured at {name} {value:.1f} {unit}, outside the search volume ({name} {low:.0f}.."
                 f"{high:.0f} {unit}, vision.search in the configuration); refusing rather than guessing"
             )
-
-
-# Where a refusal's message goes on from its first search's reason to the other searches' (:func:`_refusal`)
-OTHER_SEARCHES = " (with the pose searched at pitch "
 
 
 def _refusal(
