@@ -18,6 +18,7 @@ import dataclasses
 import functools
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -85,6 +86,18 @@ class PitchConfig:
     # uprights behind an unloaded pallet, taken for a load's edges with the deck's edges found over 42 %, gave the
     # world's vertical: 2.4 deg off (campaign seed 7, pick 35, the forks 150 mm lower).
     max_deck_under_load: float = 0.3
+    # Seen from above, a load's top face shows two side edges along pallet X, as the deck's do. At the true poses of
+    # the 85 loaded frames of the randomised set whose camera was over 0.1 m above the load, they gave a pitch in 63,
+    # 54 of them within 0.1 deg (the rest up to 0.17 off, as deck edges err): a third cue, counted only where it
+    # agrees with the load's edges or its face's lines. The load's height is not known: tops are searched from
+    # ``top_lowest`` above the deck to ``top_above`` below the camera, ``top_step`` apart (steps of 0.15 m found 51
+    # pitches, 44 within 0.1 deg; 0.25 m 31, 27), each within the wider ``top_band`` (nor is the load's width).
+    top_lowest: float = 0.3
+    top_above: float = 0.1
+    top_step: float = 0.1
+    top_band: float = math.radians(6.0)
+    # At those true poses, 5 of the 11 top faces fitted to over 0.035 deg were over 0.1 deg off, 4 of the 52 within it.
+    top_max_sigma: float = math.radians(0.035)
 
 
 @dataclass(frozen=True)
@@ -249,7 +262,8 @@ def loaded_evidence(
         return pair
     face = load_face_direction(pair, camera, camera_in_fork, pallet, pallet_in_fork, config)
     if face is None:
-        return pair
+        return pair if pair.valid else _confirmed_by_load_top(pair, None, gray, camera, camera_in_fork, pallet,
+                                                              pallet_in_fork, config, colour)
     nearest = min(pair.candidates, key=lambda c: abs(c - face.pitch))
     miss = abs(nearest - face.pitch)
     alone = face.sigma <= config.face_alone_tight or (
@@ -264,8 +278,10 @@ def loaded_evidence(
                 f"deg (at most {math.degrees(config.face_max_sigma):.3f})")
     if note:
         lead = face.pitch if miss > config.face_agreement and face.sigma <= config.face_max_sigma else math.nan
-        return dataclasses.replace(pair, valid=False, pitch=math.nan, direction=np.full(3, np.nan), ambiguous=False,
-                                   note=note, lead=lead)
+        refused = dataclasses.replace(pair, valid=False, pitch=math.nan, direction=np.full(3, np.nan),
+                                      ambiguous=False, note=note, lead=lead)
+        return _confirmed_by_load_top(refused, face, gray, camera, camera_in_fork, pallet, pallet_in_fork, config,
+                                      colour)
     if alone or miss > config.face_agreement:
         sigma = face.sigma if miss > config.face_agreement else math.hypot(face.sigma, miss / 2)
         return dataclasses.replace(pair, valid=True, pitch=face.pitch, direction=face.direction, ambiguous=False,
@@ -273,11 +289,81 @@ def loaded_evidence(
     # Where a face that does not fix the pitch alone agrees with the edges, the edges count as much as the face:
     # its lines lean together by up to 0.13 deg (one carton row's joints), the edges err on their own; at the true
     # pose of 36 random looks the face was up to 0.13 deg off where the two agreed, their mean at most 0.08.
-    pitch = (face.pitch + nearest) / 2
+    return _loaded_at(pair, (face.pitch + nearest) / 2, math.hypot(face.sigma, miss / 2), camera_in_fork,
+                      pallet_in_fork)
+
+
+def _loaded_at(
+    evidence: PitchEvidence, pitch: float, sigma: float, camera_in_fork: Transform, pallet_in_fork: Transform
+) -> PitchEvidence:
+    """``evidence`` made valid at ``pitch`` (rad) to ``sigma``, its direction the load's vertical at that pitch."""
     yaw, _, roll = pallet_in_fork.euler
     direction = camera_in_fork.inverse().rotation @ Transform.from_euler(0.0, 0.0, 0.0, roll, pitch, yaw).rotation[:, 2]
-    return dataclasses.replace(pair, valid=True, pitch=pitch, direction=direction, ambiguous=False,
-                               sigma=math.hypot(face.sigma, miss / 2))
+    return dataclasses.replace(evidence, valid=True, pitch=pitch, direction=direction, ambiguous=False, sigma=sigma,
+                               note="", lead=math.nan)
+
+
+def _confirmed_by_load_top(
+    refused: PitchEvidence,
+    face: FaceDirection | None,
+    gray: NDArray,
+    camera: CameraModel,
+    camera_in_fork: Transform,
+    pallet: PalletType,
+    pallet_in_fork: Transform,
+    config: PitchConfig,
+    colour: NDArray[np.uint8] | None,
+) -> PitchEvidence:
+    """A loaded hypothesis the edges and face could not settle, given the pitch where the load's top face
+    (:func:`load_top_evidence`, fitted to :attr:`PitchConfig.top_max_sigma`) agrees within
+    :attr:`PitchConfig.face_agreement` with the edges' pitch or with a face that is sure enough (their mean); else
+    ``refused`` as it is. Two independent cues must agree: the top face alone errs as the deck edges do, and the
+    pitches of the edges paired with a rival line are not offered to it (among several, one agrees by chance: a
+    load accepted 0.16 deg off so, campaign seed 7 pick 134)."""
+    cues = list(refused.candidates[:1])
+    if face is not None and face.sigma <= config.face_max_sigma:
+        cues.append(face.pitch)
+    if not cues:
+        return refused
+    top = load_top_evidence(gray, camera, camera_in_fork, pallet, pallet_in_fork, config, colour=colour)
+    if top is None or not top.valid or top.sigma > config.top_max_sigma:
+        return refused
+    nearest = min(cues, key=lambda c: abs(c - top.pitch))
+    miss = abs(nearest - top.pitch)
+    if miss > config.face_agreement:
+        return refused
+    return _loaded_at(refused, (top.pitch + nearest) / 2, math.hypot(top.sigma, miss / 2), camera_in_fork,
+                      pallet_in_fork)
+
+
+def load_top_evidence(
+    gray: NDArray,
+    camera: CameraModel,
+    camera_in_fork: Transform,
+    pallet: PalletType,
+    pallet_in_fork: Transform,
+    config: PitchConfig = PitchConfig(),
+    *,
+    colour: NDArray[np.uint8] | None = None,
+) -> PitchEvidence | None:
+    """The side edges of a load's top face, parallel to pallet X, where the camera looks down on it; None when the
+    camera is not :attr:`PitchConfig.top_above` over the lowest top searched.
+
+    Tops are searched from :attr:`PitchConfig.top_lowest` above the deck to ``top_above`` below the camera,
+    :attr:`PitchConfig.top_step` apart, all in one panorama, each pair within :attr:`PitchConfig.top_band` of lines
+    ``load_search / 2`` inside the pallet's sides; the valid pair with the highest ratio is returned, else the
+    highest ratio. Any line along X on the load's top (a carton joint) gives the same pitch as its sides."""
+    lowest = pallet.deck_top + config.top_lowest
+    highest = (pallet_in_fork.inverse() @ camera_in_fork).translation[2] - config.top_above
+    if highest <= lowest:
+        return None
+    x = np.linspace(0.03, pallet.length - 0.03, 24)
+    y = pallet.width / 2 - config.load_search / 2
+    pairs = [[np.c_[x, np.full_like(x, side * y), np.full_like(x, z)] for side in (-1, 1)]
+             for z in np.arange(lowest, highest, config.top_step)]
+    found = _evidences("load top", gray, camera, camera_in_fork, pallet_in_fork, pairs, 0,
+                       dataclasses.replace(config, band=config.top_band), colour=colour)
+    return max(found, key=lambda e: (e.valid, e.ratio))
 
 
 @dataclass(frozen=True)
@@ -348,7 +434,7 @@ def load_face_direction(
     if found is None:
         return None
     direction, sigma, lines = found
-    pitch = _pitch_from_direction(camera_in_fork.apply_direction(direction), pallet_in_fork, "loaded")
+    pitch = _pitch_from_direction(camera_in_fork.apply_direction(direction), pallet_in_fork, 2)
     return FaceDirection(direction, pitch, sigma, lines)
 
 
@@ -503,20 +589,77 @@ def _evidence(
     longer segments along which a found edge is followed for its fit (the load's full height); ``face``:
     keep the edge points of the area the edges' regions span (``face_points``); ``colour``: the frame ``gray`` was
     made from, for the edges beside clipped light."""
+    return _evidences(hypothesis, gray, camera, camera_in_fork, pallet_in_fork, [segments_p], axis_index, config,
+                      anchored, None if reach_p is None else [reach_p], face, colour)[0]
+
+
+class _EdgePoints(NamedTuple):
+    """Edge points of a panorama (:func:`_edge_points`): directions (N, 3), strong (N,), columns and rows (N,)."""
+
+    directions: Array
+    strong: NDArray[np.bool_]
+    columns: Array
+    rows: Array
+
+
+def _evidences(
+    hypothesis: str,
+    gray: NDArray,
+    camera: CameraModel,
+    camera_in_fork: Transform,
+    pallet_in_fork: Transform,
+    pairs_p: list[list[Array]],
+    axis_index: int,
+    config: PitchConfig,
+    anchored: bool = False,
+    reaches_p: list[list[Array]] | None = None,
+    face: bool = False,
+    colour: NDArray[np.uint8] | None = None,
+) -> list[PitchEvidence]:
+    """:func:`_evidence` for several pairs of segments at once, from one panorama and one set of edge points (the
+    panorama and its edge points cost most); ``face`` keeps the points of the area all regions span."""
     pallet_in_camera = camera_in_fork.inverse() @ pallet_in_fork
     predicted = pallet_in_camera.rotation[:, axis_index]
-    segments = [pallet_in_camera.apply(s) for s in segments_p]
-    reach = [pallet_in_camera.apply(s) for s in reach_p] if reach_p is not None else segments
-    panorama = _panorama_over(predicted, segments + reach, config)
+    pairs = [[pallet_in_camera.apply(s) for s in pair] for pair in pairs_p]
+    reaches = [[pallet_in_camera.apply(s) for s in pair] for pair in reaches_p] if reaches_p is not None else pairs
+    panorama = _panorama_over(predicted, [s for pair in pairs + reaches for s in pair], config)
     image, valid = render_panorama(gray, camera, panorama)
     colour_panorama = render_panorama(colour, camera, panorama)[0] if colour is not None else None
-    regions = [_region(panorama, segment, config) for segment in segments]
-    reaches = [_region(panorama, far, config) for far in reach]
-    spanned = np.r_[[r[[0, 1, 2, 3]] for r in regions + reaches]]
+    regions = [[_region(panorama, segment, config) for segment in pair] for pair in pairs]
+    reach_regions = [[_region(panorama, far, config) for far in pair] for pair in reaches]
+    spanned = np.array([r for pair in regions + reach_regions for r in pair])
     area = np.array([spanned[:, 0].min(), spanned[:, 1].max(), spanned[:, 2].min(), spanned[:, 3].max()])
-    areas = regions + reaches + ([area] if face else [])
-    directions, strong, columns, rows = _edge_points(image.astype(np.float32), valid, panorama, areas, colour_panorama)
-    face_points = directions[_inside(area, columns, rows) & strong] if face else None
+    areas = list(spanned) + ([area] if face else [])
+    points = _EdgePoints(*_edge_points(image.astype(np.float32), valid, panorama, areas, colour_panorama))
+    face_points = points.directions[_inside(area, points.columns, points.rows) & points.strong] if face else None
+    return [
+        _pair_evidence(hypothesis, camera, camera_in_fork, pallet_in_fork, panorama, points, pair, far, region,
+                       reach_region, axis_index, config, anchored, face_points)
+        for pair, far, region, reach_region in zip(pairs, reaches, regions, reach_regions, strict=True)
+    ]
+
+
+def _pair_evidence(
+    hypothesis: str,
+    camera: CameraModel,
+    camera_in_fork: Transform,
+    pallet_in_fork: Transform,
+    panorama: Panorama,
+    points: _EdgePoints,
+    segments: list[Array],
+    reach: list[Array],
+    regions: list[Array],
+    reaches: list[Array],
+    axis_index: int,
+    config: PitchConfig,
+    anchored: bool,
+    face_points: Array | None,
+) -> PitchEvidence:
+    """The edges of one pair of ``segments`` (camera frame) among the edge ``points`` of ``panorama``, followed
+    along ``reach`` for their fits; ``regions`` and ``reaches`` are their predicted regions."""
+    pallet_in_camera = camera_in_fork.inverse() @ pallet_in_fork
+    predicted = pallet_in_camera.rotation[:, axis_index]
+    directions, strong, columns, rows = points
     lines, ratios, tilts = [], [], []
     rivals: list[SphereLine | None] = []
     for segment, far, region, reach_region in zip(segments, reach, regions, reaches, strict=True):
@@ -559,7 +702,7 @@ def _evidence(
                 except ValueError:
                     return found(False, math.nan, nan)
                 pitches.append(_pitch_from_direction(camera_in_fork.apply_direction(direction), pallet_in_fork,
-                                                     hypothesis))
+                                                     axis_index))
     direction = common_direction(lines[0].normal, lines[1].normal, predicted)
     across = math.degrees(math.asin(min(abs(float(direction @ pallet_in_camera.rotation[:, 1])), 1.0)))
     if across > math.degrees(config.max_across):
@@ -568,7 +711,7 @@ def _evidence(
     pitch, spread = pitches[0], max(abs(p - pitches[0]) for p in pitches)
     if spread > config.rival_pitch:
         return found(False, math.nan, nan, ambiguous=True, candidates=tuple(pitches))
-    sigma = math.hypot(*_pitch_spread_of_tilts(lines, tilts, predicted, camera_in_fork, pallet_in_fork, hypothesis),
+    sigma = math.hypot(*_pitch_spread_of_tilts(lines, tilts, predicted, camera_in_fork, pallet_in_fork, axis_index),
                        spread / 2)
     placed = all(rival is None for rival in rivals)
     return found(True, pitch, direction, sigma=sigma, placed=placed, candidates=tuple(pitches))
@@ -619,12 +762,12 @@ def tilt_sigma(points: Array, normal: Array, blocks: int = 8) -> tuple[Array, fl
 
 def _pitch_spread_of_tilts(
     lines: list[SphereLine], tilts: list[tuple[Array, float]], predicted: Array, camera_in_fork: Transform,
-    pallet_in_fork: Transform, hypothesis: str,
+    pallet_in_fork: Transform, axis_index: int,
 ) -> list[float]:
     """How far the pitch moves (rad) when each line is turned by its tilt's standard error about its centre."""
     def pitch_of(normals: list[Array]) -> float:
         direction = common_direction(normals[0], normals[1], predicted)
-        return _pitch_from_direction(camera_in_fork.apply_direction(direction), pallet_in_fork, hypothesis)
+        return _pitch_from_direction(camera_in_fork.apply_direction(direction), pallet_in_fork, axis_index)
 
     normals = [line.normal for line in lines]
     base = pitch_of(normals)
@@ -702,10 +845,11 @@ def _anchor_decides(
     return miss_line <= config.anchor_tolerance and miss_rival - miss_line >= config.anchor_gap
 
 
-def _pitch_from_direction(direction_f: Array, pallet_in_fork: Transform, hypothesis: str) -> float:
+def _pitch_from_direction(direction_f: Array, pallet_in_fork: Transform, axis_index: int) -> float:
+    """The pitch (rad) at which pallet axis ``axis_index`` (0: X, 2: Z) points along ``direction_f`` (fork frame)."""
     yaw = pallet_in_fork.euler[0]
     forward = direction_f[0] * math.cos(yaw) + direction_f[1] * math.sin(yaw)
-    if hypothesis == "unloaded":  # the direction is pallet X: positive pitch tips it down
+    if axis_index == 0:  # the direction is pallet X: positive pitch tips it down
         return math.atan2(-direction_f[2], forward)
     return math.atan2(forward, direction_f[2])  # pallet Z, turned by 90 deg
 

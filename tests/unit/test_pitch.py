@@ -193,3 +193,20 @@ def test_edges_beside_clipping_in_every_channel_are_dropped_and_those_away_from_
     unclipped = _overexposed_step(30.3, (150.0, 180.0, 200.0))
     columns = np.array([_grey_edge_column(unclipped), 12.0])
     assert np.array_equal(unclipped_edge_columns(unclipped, columns, np.array([4.0, 4.0]), threshold=10.0), columns)
+
+
+def test_no_load_top_is_searched_where_the_camera_is_not_above_the_lowest_one():
+    """A camera 0.3 m over the deck cannot look down on a load top at least PitchConfig.top_lowest above it."""
+    from agf.camera import load_camera
+    from agf.paths import repo_path
+    from agf.vision.pitch import PitchConfig, load_top_evidence
+
+    camera = load_camera(repo_path("configs/cameras/thetav_front.txt"))
+    image = np.zeros((camera.height, camera.width), np.uint8)
+    config = PitchConfig()
+    # the pallet's height in the fork frame at which the lowest top searched lies top_above below the camera
+    level = CAMERA_IN_FORK.translation[2] - PALLET.deck_top - config.top_lowest - config.top_above
+    high = Transform.from_euler(0.3, 0.0, level + 0.01)
+    assert load_top_evidence(image, camera, CAMERA_IN_FORK, PALLET, high, config) is None
+    low = Transform.from_euler(0.3, 0.0, level - 0.2)
+    assert load_top_evidence(image, camera, CAMERA_IN_FORK, PALLET, low, config) is not None
