@@ -170,7 +170,8 @@ class PickResult:
     ``durations`` are per state on the controller's clock (s; simulated seconds in the simulated
     world, where the vision takes none), ``wall_durations`` the same in wall seconds. ``views`` holds
     why each viewing move was made (the forks hid the pallet), ``withdrawals`` why the forks withdrew to
-    verify again (the verifying measurement was refused).
+    verify again (the verifying measurement was refused). ``refused``: the pick ended on a refusal (a measurement
+    refused, or two that contradict each other), not a fault.
     """
 
     ok: bool
@@ -183,6 +184,7 @@ class PickResult:
     wall_durations: dict[str, float] = field(default_factory=dict)
     views: list[str] = field(default_factory=list)
     withdrawals: list[str] = field(default_factory=list)
+    refused: bool = False
 
 
 class PickController:
@@ -280,6 +282,7 @@ class PickController:
             except (AgfError, TimeoutError) as exc:
                 self._safe_stop()
                 result.reason = f"{state}: {exc}"
+                result.refused = isinstance(exc, MeasurementError)
                 self._send("abort", result.reason)
                 break
             finally:

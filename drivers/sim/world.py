@@ -102,7 +102,6 @@ class SimulatedWorld:
         self.frames_lost = 0
         self.frame_truths: list[Transform] = []  # the true pallet_in_fork of each rendered frame
         self.measured_truths: list[Transform] = []  # ... of each frame measured successfully
-        self.refusal: str | None = None  # why the last measurement was refused, None when it was not
         # The fork height (m, truck frame) vision.search was narrowed at when it is anchored to the floor (a fleet
         # pick's height), None when it moves with the forks (the configured volume).
         self.search_fork_height: float | None = None
@@ -185,14 +184,9 @@ class SimulatedWorld:
         camera = load_camera(self.config.vision.camera)
 
         def measure(frame: Frame, prior: PalletMeasurement | None) -> PalletMeasurement:
-            try:
-                measurement = measure_pallet(
-                    frame.image, camera, calibration, self.pallet, self.search(), forks=self.config.forks
-                ).measurement
-            except MeasurementError as exc:
-                self.refusal = str(exc)
-                raise
-            self.refusal = None
+            measurement = measure_pallet(
+                frame.image, camera, calibration, self.pallet, self.search(), forks=self.config.forks
+            ).measurement
             if frame.index <= len(self.frame_truths):  # a replayed frame (the fault tests') has no truth
                 self.measured_truths.append(self.frame_truths[frame.index - 1])
             return measurement
@@ -263,15 +257,14 @@ def scene_summary(scene: Scene) -> dict[str, Any]:
 
 
 def pick_outcome(result: PickResult, world: SimulatedWorld) -> str:
-    """``collided`` (any contact), ``inserted``, ``refused`` (the pick ended on a refused measurement or an
-    unsafe plan) or ``faulted`` (drive fault, lost frame, timeout, the pallet moving after alignment)."""
+    """``collided`` (any contact), ``inserted``, ``refused`` (the pick ended on a refusal, :attr:`PickResult.refused`,
+    or an unsafe plan) or ``faulted`` (drive fault, lost frame, timeout, the pallet moving after alignment)."""
     if world.min_clearance < 0:
         return "collided"
     if result.ok:
         return "inserted"
-    reason = result.reason or ""
-    unsafe = result.plan is not None and not result.plan.safe and reason.startswith("planning")
-    return "refused" if unsafe or (world.refusal is not None and world.refusal in reason) else "faulted"
+    unsafe = result.plan is not None and not result.plan.safe and (result.reason or "").startswith("planning")
+    return "refused" if unsafe or result.refused else "faulted"
 
 
 def world_clock(config: Config) -> Clock:

@@ -219,6 +219,21 @@ def test_regression_campaign_pick_22_of_seed_7_accepts_no_measurement_outside_bo
     assert_no_measurement_outside_bounds(7, 22)
 
 
+
+def test_regression_campaign_pick_386_of_seed_7_ends_refused_not_in_the_pallet():
+    """An unloaded pallet pitched 2.28 deg on a truck bed, a shadow's edge beside a deck edge: its first frame was
+    accepted 1.58 deg low, its verifying frame 38 mm low, and the pick re-planned on the latter and drove the tines
+    10 mm into the pallet (session 26). The two measurements contradict each other (a pallet is not lowered while the
+    forks align): the pick must insert clear of the pallet or end refused, never re-plan on either."""
+    from drivers.sim.world import campaign_scene, pick_outcome
+
+    scene = campaign_scene(load_scene(repo_path("configs/scenes/pick.yaml")), 7, 386)
+    with SimulatedWorld(CONFIG, scene) as world:
+        result = world.controller().run()
+        outcome = pick_outcome(result, world)
+    assert outcome in ("inserted", "refused"), (outcome, result.reason)
+    assert result.ok or "refusing rather than guessing" in result.reason, result.reason
+
 # The picks of `agf simulate --random 200 --seed 7` that accepted a measurement outside the bounds (all in
 # pitch, 0.10-0.39 deg; 2026-11-25). Open wrong accepts of issue 17: each must pass when it is fixed. Picks 134,
 # 163 and 173 left the list unfixed: since the simulated drives start at the start pose instead of moving there

@@ -122,34 +122,21 @@ def test_ray_gives_the_process_pools_results(tmp_path):
 
 
 @pytest.mark.parametrize(
-    ("ok", "reason", "refusal", "plan_safe", "clearance", "outcome"),
+    ("ok", "reason", "refused", "plan_safe", "clearance", "outcome"),
     [
-        (True, None, None, True, 0.02, "inserted"),
-        (True, None, None, True, -0.001, "collided"),
-        (
-            False,
-            "measuring: the forks hide 37% of the pocket edges",
-            "the forks hide 37% of the pocket edges",
-            None,
-            float("inf"),
-            "refused",
-        ),
-        (False, "planning: insertion refused: height margin -3 mm", None, False, 0.2, "refused"),
-        (
-            False,
-            "aligning: drive fault on lift: following error",
-            "an earlier refusal, then a viewing pose",
-            True,
-            0.1,
-            "faulted",
-        ),
-        (False, "acquiring: simulated camera: no frame within 60.00 s", None, None, float("inf"), "faulted"),
+        (True, None, False, True, 0.02, "inserted"),
+        (True, None, False, True, -0.001, "collided"),
+        (False, "measuring: the forks hide 37% of the pocket edges", True, None, float("inf"), "refused"),
+        (False, "verifying: the verifying measurement puts the pallet 38.1 mm lower", True, True, 0.2, "refused"),
+        (False, "planning: insertion refused: height margin -3 mm", False, False, 0.2, "refused"),
+        (False, "aligning: drive fault on lift: following error", False, True, 0.1, "faulted"),
+        (False, "acquiring: simulated camera: no frame within 60.00 s", False, None, float("inf"), "faulted"),
     ],
 )
-def test_a_pick_outcome_is_what_ended_it(ok, reason, refusal, plan_safe, clearance, outcome):
+def test_a_pick_outcome_is_what_ended_it(ok, reason, refused, plan_safe, clearance, outcome):
     plan = None if plan_safe is None else SimpleNamespace(safe=plan_safe)
-    result = SimpleNamespace(ok=ok, reason=reason, plan=plan)
-    assert pick_outcome(result, SimpleNamespace(min_clearance=clearance, refusal=refusal)) == outcome
+    result = SimpleNamespace(ok=ok, reason=reason, plan=plan, refused=refused)
+    assert pick_outcome(result, SimpleNamespace(min_clearance=clearance)) == outcome
 
 
 def test_regression_two_campaigns_started_in_the_same_second_get_folders_of_their_own(tmp_path, monkeypatch):

@@ -109,3 +109,31 @@ def test_a_withdrawal_beyond_the_reach_limit_is_refused_with_the_limit():
     planner, plan = pitched_plan(0.0)
     with pytest.raises(AgfError, match="no room to withdraw the forks.*reach.*outside its limits"):
         planner.withdraw_motion({**plan.align, "reach": 0.02}, plan)
+
+
+@pytest.mark.parametrize(
+    ("moved", "refused"),
+    [
+        (Transform.from_euler(0.0, 0.03, 0.0), None),  # pushed sideways: re-planned
+        (Transform.from_euler(0.02, 0.0, 0.0, 0.0, 0.0, math.radians(1.0)), None),  # pushed along and turned
+        (Transform.from_euler(0.0, 0.0, -0.0381), r"38\.1 mm lower"),  # campaign seed 7 pick 386's verifying frame
+        (Transform.from_euler(0.0, 0.0, 0.012), r"12\.0 mm higher"),
+        (Transform.from_euler(0.0, 0.0, 0.0, 0.0, math.radians(0.7), 0.0), r"pitch \+0\.70 deg"),
+    ],
+)
+def test_a_verifying_measurement_that_raises_or_tips_the_pallet_is_refused_not_replanned(moved, refused):
+    """A pallet bumped while the forks align is pushed or turned on its support, never raised or tipped: a verifying
+    measurement that says so contradicts the one the plan was made from, and the pick is refused rather than
+    re-planned on either (campaign seed 7, pick 386, collided re-planning on a verifying frame 38 mm low)."""
+    from agf.errors import MeasurementError
+    from agf.measurement import PalletMeasurement
+
+    planner, plan = pitched_plan(2.5)
+    in_truck = plan.pallet_in_truck @ moved
+    seen = fork_in_truck_from_axes(plan.align, MAST).inverse() @ in_truck
+    measurement = PalletMeasurement(seen, seen, False, 0.001, math.radians(0.03))
+    if refused is None:
+        assert "from where the forks expect it" in planner.verify(measurement, plan)
+        return
+    with pytest.raises(MeasurementError, match=refused + ".*refusing rather than guessing"):
+        planner.verify(measurement, plan)
