@@ -166,8 +166,8 @@ def check_support_unchanged(measured_in_truck: Transform, planned_in_truck: Tran
     tip = measured_in_truck.euler[1] - planned_in_truck.euler[1]
     if abs(rise) > settings.verify_height_change or abs(tip) > settings.verify_pitch_change:
         raise MeasurementError(
-            f"the verifying measurement puts the pallet {abs(rise) * 1e3:.1f} mm {'higher' if rise > 0 else 'lower'} and "
-            f"its pitch {math.degrees(tip):+.2f} deg from the one the plan was made from (at most "
+            f"the verifying measurement puts the pallet {abs(rise) * 1e3:.1f} mm {'higher' if rise > 0 else 'lower'} "
+            f"and its pitch {math.degrees(tip):+.2f} deg from the one the plan was made from (at most "
             f"{settings.verify_height_change * 1e3:.0f} mm and "
             f"{math.degrees(settings.verify_pitch_change):.1f} deg): a pallet on its support is not raised or tipped, "
             "so one of the two measurements is wrong; refusing rather than guessing"

@@ -38,7 +38,14 @@ from agf.vision.pallet_pose import (
     estimate_pallet_pose,
     refine_pallet_pose,
 )
-from agf.vision.pitch import PitchConfig, PitchEvidence, loaded_evidence, pose_from_deck_edges, unloaded_evidence
+from agf.vision.pitch import (
+    PitchConfig,
+    PitchEvidence,
+    deck_corner_misses,
+    loaded_evidence,
+    pose_from_deck_edges,
+    unloaded_evidence,
+)
 
 
 @dataclass(frozen=True)
@@ -84,7 +91,8 @@ class MeasureConfig:
     # further apart than twice the measurement's 5 mm bound (so one of them is outside it), the face's edges must
     # agree clearly better at its pose than at the deck edges': a face seen steeply matched 15 mm high and agreed
     # 51% against the deck edges' pose 43% (3 mm high; random look 9 of paper scene unloaded-high-rear-up), where
-    # deck edges on other lines put a face 1 mm from the truth 18 mm off, at 1% (look 8 of unloaded-low-rear-up).
+    # deck edges on other lines put a face 1 mm from the truth 18 mm off, at 1% (look 8 of unloaded-low-rear-up; since
+    # refused, as its deck edges miss the deck's corners at the face's pose: check_deck_corners).
     face_fallback_max: float = 0.01
     face_fallback_lead: float = 0.25
     # At a new pitch the pose is refined from the last one when the wide search was unambiguous (its
@@ -336,6 +344,9 @@ def measure_pallet(
             check_pitch_sigma(chosen.hypothesis, chosen.sigma, config.max_sigma_pitch)
             placed = [onto_deck_edges(pose, chosen)] if chosen.hypothesis == "unloaded" and chosen.placed else []
             pose, agreement = confirmed(placed + [pose])
+            if placed and pose is not placed[0]:
+                check_deck_corners(deck_corner_misses(chosen, pallet, camera_in_fork, pose.pallet_in_fork),
+                                   config.pitch.anchor_tolerance)
             if prior is None:
                 check_in_volume(pose.pallet_in_fork, volume)
             break
@@ -372,6 +383,26 @@ def check_pitch_sigma(hypothesis: str, sigma: float, limit: float) -> None:
         raise MeasurementError(
             f"no trustworthy pitch: {source} give it only to +-{math.degrees(sigma):.3f} deg (at most "
             f"{math.degrees(limit):.3f}); refusing rather than guessing"
+        )
+
+
+def check_deck_corners(misses: NDArray[np.float64], limit: float) -> None:
+    """Refuse the deck edges' pitch where the face's own pose was confirmed and theirs was not (``confirmed`` in
+    :func:`measure_pallet`) unless both edges pass within ``limit`` panorama pixels of the deck's front corners at
+    the face's pose (``misses``, :func:`~agf.vision.pitch.deck_corner_misses`). Campaign seed 7, pick 386: a shadow's
+    edge, lit deck on one side and shaded deck on the other, ran from a far corner of an unloaded pallet to 14 px
+    inside the near one and paired with the other edge 1.58 deg off; the face's pose was right within 0.3 mm.
+
+    Raises
+    ------
+    MeasurementError
+        Naming the misses and the limit (``PitchConfig.anchor_tolerance``).
+    """
+    if np.max(misses) > limit:
+        raise MeasurementError(
+            f"the lines found for the top deck's edges pass {misses[0]:.1f} and {misses[1]:.1f} px from its front "
+            f"corners at the front face's pose (at most {limit:.0f}): they are not the deck's edges, and their pitch "
+            "is not the pallet's; refusing rather than guessing"
         )
 
 

@@ -226,6 +226,23 @@ def pose_from_deck_edges(
     return camera_in_fork @ Transform(R, origin + R[:, 1:] @ shift)
 
 
+def deck_corner_misses(
+    evidence: PitchEvidence, pallet: PalletType, camera_in_fork: Transform, pallet_in_fork: Transform
+) -> Array:
+    """How far (panorama pixels) each deck edge line of a valid unloaded ``evidence`` passes from the deck's front
+    corner at ``pallet_in_fork``, shape (2,): the left (-y) edge's, then the right's. Lines parallel to the edges
+    (a bed seam, a neighbour's edge) give the edges' pitch and miss the corners; a shadow's edge that runs from a far
+    corner past a near one does not give it."""
+    if evidence.hypothesis != "unloaded" or not evidence.valid:
+        raise ValueError(
+            f"deck edges need a valid unloaded hypothesis, got {evidence.hypothesis} (valid={evidence.valid})"
+        )
+    corners = np.array([[0.0, side * pallet.width / 2, pallet.deck_top] for side in (-1, 1)])
+    directions = _unit((camera_in_fork.inverse() @ pallet_in_fork).apply(corners))
+    normals = np.array([line.normal for line in evidence.lines])
+    return np.abs(np.sum(directions * normals, axis=1)) / evidence.panorama.pixel_size()
+
+
 def loaded_evidence(
     gray: NDArray,
     camera: CameraModel,

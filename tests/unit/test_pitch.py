@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import dataclasses
+import math
+
 import numpy as np
 import pytest
 
@@ -12,6 +15,7 @@ from agf.paths import DEFAULT_CONFIG
 from agf.vision.hough import SphereLine, fit_plane_normal
 from agf.vision.pitch import (
     PitchEvidence,
+    deck_corner_misses,
     direction_of_parallel_lines,
     pose_from_deck_edges,
     tilt_sigma,
@@ -55,6 +59,30 @@ def test_deck_edges_need_a_valid_unloaded_hypothesis():
         pose_from_deck_edges(deck_edge_evidence(truth, "loaded"), PALLET, CAMERA_IN_FORK, truth)
     with pytest.raises(ValueError, match="valid unloaded"):
         pose_from_deck_edges(deck_edge_evidence(truth, valid=False), PALLET, CAMERA_IN_FORK, truth)
+
+
+def test_a_line_from_a_far_deck_corner_past_the_near_one_misses_it_on_its_side_only():
+    """Campaign seed 7, pick 386: a shadow's edge ran from the deck's far right corner to 30 mm inside its near one."""
+    from types import SimpleNamespace
+
+    truth = Transform.from_euler(0.24, 0.03, 0.144, 0.0, math.radians(2.28), math.radians(-2.37))
+    pixel = math.radians(0.08)
+    exact = deck_edge_evidence(truth)
+    exact = dataclasses.replace(exact, panorama=SimpleNamespace(pixel_size=lambda: pixel))
+    np.testing.assert_allclose(deck_corner_misses(exact, PALLET, CAMERA_IN_FORK, truth), 0.0, atol=1e-9)
+    in_camera = CAMERA_IN_FORK.inverse() @ truth
+    far, inside = in_camera.apply(np.array([[PALLET.length, PALLET.width / 2, PALLET.deck_top],
+                                            [0.0, PALLET.width / 2 - 0.03, PALLET.deck_top]]))
+    normal = np.cross(far, inside)
+    shadow = SphereLine(normal / np.linalg.norm(normal), 1.0, np.ones(1, bool))
+    misses = deck_corner_misses(dataclasses.replace(exact, lines=[exact.lines[0], shadow]), PALLET, CAMERA_IN_FORK,
+                                truth)
+    corner = in_camera.apply(np.array([[0.0, PALLET.width / 2, PALLET.deck_top]]))[0]
+    # 30 mm across the line of sight at the corner's distance, nearly all of it across the line
+    assert misses[0] == pytest.approx(0.0, abs=1e-9)
+    assert 0.7 * 0.03 / np.linalg.norm(corner) / pixel < misses[1] < 0.03 / np.linalg.norm(corner) / pixel
+    with pytest.raises(ValueError, match="valid unloaded"):
+        deck_corner_misses(dataclasses.replace(exact, valid=False), PALLET, CAMERA_IN_FORK, truth)
 
 
 def pitched_axes(pitches: np.ndarray) -> np.ndarray:
