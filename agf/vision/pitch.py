@@ -649,88 +649,110 @@ def _evidences(
     areas = list(spanned) + ([area] if face else [])
     points = _EdgePoints(*_edge_points(image.astype(np.float32), valid, panorama, areas, colour_panorama))
     face_points = points.directions[_inside(area, points.columns, points.rows) & points.strong] if face else None
-    return [
-        _pair_evidence(hypothesis, camera, camera_in_fork, pallet_in_fork, panorama, points, pair, far, region,
-                       reach_region, axis_index, config, anchored, face_points)
-        for pair, far, region, reach_region in zip(pairs, reaches, regions, reach_regions, strict=True)
-    ]
+    search = _Search(hypothesis, camera, camera_in_fork, pallet_in_fork, pallet_in_camera, axis_index, config,
+                     panorama, points, anchored, face_points)
+    return [_pair_evidence(search, pair, far, region, reach_region)
+            for pair, far, region, reach_region in zip(pairs, reaches, regions, reach_regions, strict=True)]
+
+
+@dataclass(frozen=True)
+class _Search:
+    """What the pairs searched in one panorama share (:func:`_evidences`): the hypothesis, the geometry, the
+    panorama with its edge ``points``, and the pair's options (``anchored``, ``face_points``)."""
+
+    hypothesis: str
+    camera: CameraModel
+    camera_in_fork: Transform
+    pallet_in_fork: Transform
+    pallet_in_camera: Transform
+    axis_index: int
+    config: PitchConfig
+    panorama: Panorama
+    points: _EdgePoints
+    anchored: bool
+    face_points: Array | None
+
+    @property
+    def predicted(self) -> Array:
+        """The edges' predicted direction, camera frame (3,)."""
+        return self.pallet_in_camera.rotation[:, self.axis_index]
+
+
+class _Edge(NamedTuple):
+    """One edge of a pair (:func:`_edge`): its line (the fit along the reach where there was one), a rival line
+    beside it that the anchor does not rule out, its tilt (:func:`tilt_sigma`) and its support ratio."""
+
+    line: SphereLine | None
+    rival: SphereLine | None
+    tilt: tuple[Array, float] | None
+    ratio: float
+
+
+def _edge(search: _Search, segment: Array, far: Array, region: Array, reach_region: Array) -> _Edge:
+    """The edge along ``segment`` (camera frame) in its predicted ``region``, followed along ``far`` (its
+    ``reach_region``) for its fit."""
+    panorama, config = search.panorama, search.config
+    directions, strong, columns, rows = search.points
+    inside = _inside(region, columns, rows)
+    lon = (
+        panorama.angles_from_pixels(region[None, [0, 2]])[0][0],
+        panorama.angles_from_pixels(region[None, [1, 2]])[0][0],
+    )
+    corrected = _from_reference_viewpoint(search.camera, directions[inside], segment)
+    fitted = corrected[strong[inside]]
+    ones = np.ones(len(fitted))
+    line = _line(panorama, fitted, ones, lon, config)
+    if line is None:
+        return _Edge(None, None, None, 0.0)
+    rival = _rival_nearby(panorama, fitted, ones, line, lon, config)
+    anchor = _unit(segment[:1])[0] if search.anchored else None
+    if rival is not None and _anchor_decides(line, rival, anchor, panorama, config):
+        rival = None
+    along = _inside(reach_region, columns, rows) & strong
+    grown = _from_reference_viewpoint(search.camera, directions[along], far)
+    fit = refine_line(grown, np.ones(len(grown)), line.normal, config.inlier_tolerance * panorama.pixel_size())
+    tilt = tilt_sigma(grown[fit.inliers] if fit is not None else fitted[line.inliers],
+                      fit.normal if fit is not None else line.normal)
+    length = max(region[3] - region[2], 1.0)
+    ratio = min(_support(line, corrected, rows[inside], panorama, config) / length, 1.0)
+    return _Edge(fit if fit is not None else line, rival, tilt, ratio)
 
 
 def _pair_evidence(
-    hypothesis: str,
-    camera: CameraModel,
-    camera_in_fork: Transform,
-    pallet_in_fork: Transform,
-    panorama: Panorama,
-    points: _EdgePoints,
-    segments: list[Array],
-    reach: list[Array],
-    regions: list[Array],
-    reaches: list[Array],
-    axis_index: int,
-    config: PitchConfig,
-    anchored: bool,
-    face_points: Array | None,
+    search: _Search, segments: list[Array], reach: list[Array], regions: list[Array], reaches: list[Array]
 ) -> PitchEvidence:
-    """The edges of one pair of ``segments`` (camera frame) among the edge ``points`` of ``panorama``, followed
-    along ``reach`` for their fits; ``regions`` and ``reaches`` are their predicted regions."""
-    pallet_in_camera = camera_in_fork.inverse() @ pallet_in_fork
-    predicted = pallet_in_camera.rotation[:, axis_index]
-    directions, strong, columns, rows = points
-    lines, ratios, tilts = [], [], []
-    rivals: list[SphereLine | None] = []
-    for segment, far, region, reach_region in zip(segments, reach, regions, reaches, strict=True):
-        inside = _inside(region, columns, rows)
-        lon = (
-            panorama.angles_from_pixels(region[None, [0, 2]])[0][0],
-            panorama.angles_from_pixels(region[None, [1, 2]])[0][0],
-        )
-        corrected = _from_reference_viewpoint(camera, directions[inside], segment)
-        fitted = corrected[strong[inside]]
-        ones = np.ones(len(fitted))
-        line = _line(panorama, fitted, ones, lon, config)
-        if line is not None:
-            rival = _rival_nearby(panorama, fitted, ones, line, lon, config)
-            anchor = _unit(segment[:1])[0] if anchored else None
-            rivals.append(None if rival is None or _anchor_decides(line, rival, anchor, panorama, config) else rival)
-            along = _inside(reach_region, columns, rows) & strong
-            grown = _from_reference_viewpoint(camera, directions[along], far)
-            fit = refine_line(grown, np.ones(len(grown)), line.normal, config.inlier_tolerance * panorama.pixel_size())
-            tilts.append(tilt_sigma(grown[fit.inliers] if fit is not None else fitted[line.inliers],
-                                    fit.normal if fit is not None else line.normal))
-        length = max(region[3] - region[2], 1.0)
-        ratios.append(
-            0.0 if line is None else min(_support(line, corrected, rows[inside], panorama, config) / length, 1.0)
-        )
-        if line is not None:
-            lines.append(fit if fit is not None else line)
-    ratio = float(min(ratios))
+    """The edges of one pair of ``segments`` (camera frame) among the search's edge points, followed along
+    ``reach`` for their fits; ``regions`` and ``reaches`` are their predicted regions."""
+    config, predicted = search.config, search.predicted
+    edges = [_edge(search, *edge) for edge in zip(segments, reach, regions, reaches, strict=True)]
+    lines = [e.line for e in edges if e.line is not None]
+    ratio = float(min(e.ratio for e in edges))
     nan = np.full(3, np.nan)
-    found = functools.partial(PitchEvidence, hypothesis, ratio, panorama=panorama, regions=regions, lines=lines,
-                              face_points=face_points)
+    found = functools.partial(PitchEvidence, search.hypothesis, ratio, panorama=search.panorama, regions=regions,
+                              lines=lines, face_points=search.face_points)
     if len(lines) < 2 or ratio < config.min_ratio:
         return found(False, math.nan, nan)
     pitches = []
-    for left in (lines[0], rivals[0]):
-        for right in (lines[1], rivals[1]):
+    for left in (edges[0].line, edges[0].rival):
+        for right in (edges[1].line, edges[1].rival):
             if left is not None and right is not None:
                 try:
                     direction = common_direction(left.normal, right.normal, predicted)
                 except ValueError:
                     return found(False, math.nan, nan)
-                pitches.append(_pitch_from_direction(camera_in_fork.apply_direction(direction), pallet_in_fork,
-                                                     axis_index))
+                pitches.append(_pitch_from_direction(search.camera_in_fork.apply_direction(direction),
+                                                     search.pallet_in_fork, search.axis_index))
     direction = common_direction(lines[0].normal, lines[1].normal, predicted)
-    across = math.degrees(math.asin(min(abs(float(direction @ pallet_in_camera.rotation[:, 1])), 1.0)))
+    across = math.degrees(math.asin(min(abs(float(direction @ search.pallet_in_camera.rotation[:, 1])), 1.0)))
     if across > math.degrees(config.max_across):
-        return found(False, math.nan, nan, note=f"the {hypothesis} edges run {across:.1f} deg across the pallet's "
-                     f"axis (at most {math.degrees(config.max_across):.1f}): they are not the pallet's")
+        return found(False, math.nan, nan, note=f"the {search.hypothesis} edges run {across:.1f} deg across the "
+                     f"pallet's axis (at most {math.degrees(config.max_across):.1f}): they are not the pallet's")
     pitch, spread = pitches[0], max(abs(p - pitches[0]) for p in pitches)
     if spread > config.rival_pitch:
         return found(False, math.nan, nan, ambiguous=True, candidates=tuple(pitches))
-    sigma = math.hypot(*_pitch_spread_of_tilts(lines, tilts, predicted, camera_in_fork, pallet_in_fork, axis_index),
-                       spread / 2)
-    placed = all(rival is None for rival in rivals)
+    sigma = math.hypot(*_pitch_spread_of_tilts(lines, [e.tilt for e in edges], predicted, search.camera_in_fork,
+                                               search.pallet_in_fork, search.axis_index), spread / 2)
+    placed = all(e.rival is None for e in edges)
     return found(True, pitch, direction, sigma=sigma, placed=placed, candidates=tuple(pitches))
 
 
