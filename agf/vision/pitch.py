@@ -207,10 +207,7 @@ def pose_from_deck_edges(
     ValueError
         When ``evidence`` is not a valid unloaded hypothesis.
     """
-    if evidence.hypothesis != "unloaded" or not evidence.valid:
-        raise ValueError(
-            f"deck edges need a valid unloaded hypothesis, got {evidence.hypothesis} (valid={evidence.valid})"
-        )
+    normals = _deck_edge_normals(evidence)
     forward = camera_in_fork.apply_direction(evidence.direction)
     turned = Transform.from_euler(
         *pallet_in_fork.translation,
@@ -220,9 +217,7 @@ def pose_from_deck_edges(
     )
     in_camera = camera_in_fork.inverse() @ turned
     R, origin = in_camera.rotation, in_camera.translation
-    normals = np.array([line.normal for line in evidence.lines])
-    corners = np.array([[0.0, side * pallet.width / 2, pallet.deck_top] for side in (-1, 1)])
-    shift = np.linalg.solve(normals @ R[:, 1:], -np.sum(normals * in_camera.apply(corners), axis=1))
+    shift = np.linalg.solve(normals @ R[:, 1:], -np.sum(normals * in_camera.apply(_deck_front_corners(pallet)), axis=1))
     return camera_in_fork @ Transform(R, origin + R[:, 1:] @ shift)
 
 
@@ -233,14 +228,24 @@ def deck_corner_misses(
     corner at ``pallet_in_fork``, shape (2,): the left (-y) edge's, then the right's. Lines parallel to the edges
     (a bed seam, a neighbour's edge) give the edges' pitch and miss the corners; a shadow's edge that runs from a far
     corner past a near one does not give it."""
+    normals = _deck_edge_normals(evidence)
+    directions = _unit((camera_in_fork.inverse() @ pallet_in_fork).apply(_deck_front_corners(pallet)))
+    return np.abs(np.sum(directions * normals, axis=1)) / evidence.panorama.pixel_size()
+
+
+def _deck_edge_normals(evidence: PitchEvidence) -> Array:
+    """The great-circle normals (2, 3) of a valid unloaded ``evidence``'s deck edges, left (-y) then right; else
+    ValueError."""
     if evidence.hypothesis != "unloaded" or not evidence.valid:
         raise ValueError(
             f"deck edges need a valid unloaded hypothesis, got {evidence.hypothesis} (valid={evidence.valid})"
         )
-    corners = np.array([[0.0, side * pallet.width / 2, pallet.deck_top] for side in (-1, 1)])
-    directions = _unit((camera_in_fork.inverse() @ pallet_in_fork).apply(corners))
-    normals = np.array([line.normal for line in evidence.lines])
-    return np.abs(np.sum(directions * normals, axis=1)) / evidence.panorama.pixel_size()
+    return np.array([line.normal for line in evidence.lines])
+
+
+def _deck_front_corners(pallet: PalletType) -> Array:
+    """The top deck's front corners (2, 3), pallet frame, left (-y) then right."""
+    return np.array([[0.0, side * pallet.width / 2, pallet.deck_top] for side in (-1, 1)])
 
 
 def loaded_evidence(
