@@ -283,10 +283,13 @@ def measure_pallet(
             )
         return dataclasses.replace(pose, pallet_in_fork=moved, pallet_in_camera=camera_in_fork.inverse() @ moved)
 
-    def check_fallback(placed: PoseEstimate, own: PoseEstimate, agreement: EdgeAgreement, other: EdgeAgreement) -> None:
+    def check_fallback(
+        placed: PoseEstimate, own: PoseEstimate, agreement: EdgeAgreement, other: EdgeAgreement, edges: PitchEvidence
+    ) -> None:
         """Refuse the face's own pose, confirmed where the deck edges' ``placed`` was not (its edges agreed
         ``other``), when the two are more than :attr:`MeasureConfig.face_fallback_max` apart and its face
-        edges do not agree clearly better there (:attr:`MeasureConfig.face_fallback_lead`)."""
+        edges do not agree clearly better there (:attr:`MeasureConfig.face_fallback_lead`), or when the deck
+        ``edges``, whose pitch it keeps, miss the deck's front corners at it (:func:`check_deck_corners`)."""
         apart = _distance(own.pallet_in_fork, placed.pallet_in_fork)
         if apart > config.face_fallback_max and agreement.score - other.score < config.face_fallback_lead:
             raise MeasurementError(
@@ -295,13 +298,16 @@ def measure_pallet(
                 f"face's, {other.score:.0%} at the deck edges' (need a lead of "
                 f"{config.face_fallback_lead:.0%}); refusing rather than guessing"
             )
+        check_deck_corners(deck_corner_misses(edges, pallet, camera_in_fork, own.pallet_in_fork),
+                           config.pitch.anchor_tolerance)
 
-    def confirmed(poses: list[PoseEstimate]) -> tuple[PoseEstimate, EdgeAgreement]:
+    def confirmed(poses: list[PoseEstimate], edges: PitchEvidence) -> tuple[PoseEstimate, EdgeAgreement]:
         """The first pose whose face edges the image confirms (:func:`check_face_edges`), with its
         agreement; else the first one's refusal. The deck edges' pose comes first: seen steeply, the face
         match settled 7-29 mm off in z. The face's own pose is the fallback: through a lens pitched 25 deg,
         the deck edges' pose sat 6.5 mm high and not one pocket top edge agreed with it (foreign render
-        real-lens-unloaded), while the face's own was within 0.5 mm (see ``check_fallback``)."""
+        real-lens-unloaded), while the face's own was within 0.5 mm (see ``check_fallback``, which also
+        checks the pitch's ``edges`` against it)."""
         t = time.perf_counter()
         refusals = []
         try:
@@ -313,7 +319,7 @@ def measure_pallet(
                     refusals.append(exc)
                     continue
                 if refusals:
-                    check_fallback(poses[0], candidate, agreement, refusals[0].found)
+                    check_fallback(poses[0], candidate, agreement, refusals[0].found, edges)
                 return candidate, agreement
             raise refusals[0]
         finally:
@@ -343,10 +349,7 @@ def measure_pallet(
             # before the face-edge check, which costs 50 ms and cannot change the pitch's sigma
             check_pitch_sigma(chosen.hypothesis, chosen.sigma, config.max_sigma_pitch)
             placed = [onto_deck_edges(pose, chosen)] if chosen.hypothesis == "unloaded" and chosen.placed else []
-            pose, agreement = confirmed(placed + [pose])
-            if placed and pose is not placed[0]:
-                check_deck_corners(deck_corner_misses(chosen, pallet, camera_in_fork, pose.pallet_in_fork),
-                                   config.pitch.anchor_tolerance)
+            pose, agreement = confirmed(placed + [pose], chosen)
             if prior is None:
                 check_in_volume(pose.pallet_in_fork, volume)
             break
@@ -387,8 +390,8 @@ def check_pitch_sigma(hypothesis: str, sigma: float, limit: float) -> None:
 
 
 def check_deck_corners(misses: NDArray[np.float64], limit: float) -> None:
-    """Refuse the deck edges' pitch where the face's own pose was confirmed and theirs was not (``confirmed`` in
-    :func:`measure_pallet`) unless both edges pass within ``limit`` panorama pixels of the deck's front corners at
+    """Refuse the deck edges' pitch where the face's own pose was confirmed and theirs was not (``check_fallback``
+    in :func:`measure_pallet`) unless both edges pass within ``limit`` panorama pixels of the deck's front corners at
     the face's pose (``misses``, :func:`~agf.vision.pitch.deck_corner_misses`). Campaign seed 7, pick 386: a shadow's
     edge, lit deck on one side and shaded deck on the other, ran from a far corner of an unloaded pallet to 14 px
     inside the near one and paired with the other edge 1.58 deg off; the face's pose was right within 0.3 mm.
