@@ -81,6 +81,15 @@ class PitchConfig:
     face_alone_tight: float = math.radians(0.02)
     # A pair of deck edges this uncertain (their tilts' standard errors, see tilt_sigma) is no pitch either.
     edge_max_sigma: float = math.radians(0.065)
+    # Nor is one beside a deck this close to the sensor's 255 along both edges (each edge's median highlight,
+    # edge_highlights): the optics blur an overexposed deck's light past its outline before the sensor clips it, and
+    # JPEG's ringing at the clipped edge moves the edge's gradient maxima outwards by a growing fraction of a pixel
+    # towards the deck's far end. Of the 181 unloaded measurements on 604 randomised first frames (374 as drawn,
+    # 230 seen level with the forks), the 10 with both edges at 243 or more were 0.04-0.23 deg off in pitch, 4 of
+    # them outside the 0.1 deg bound (campaign seed 7 pick 38: -0.146), while the next brightest (236) was within
+    # 0.052; campaign seed 4242 pick 22 rendered without its JPEG step was 0.047 deg off instead of 0.194, at 0.7 of
+    # its exposure 0.029. Lowering the camera's exposure keeps the deck's edges off the clipped highlights.
+    max_deck_highlight: float = 240.0
     # A load hides the top deck's side edges: where the loaded hypothesis is taken, the unloaded one found them over
     # at most 26 % of their length on 62 right loaded measurements (random looks, campaign first frames). Rack
     # uprights behind an unloaded pallet, taken for a load's edges with the deck's edges found over 42 %, gave the
@@ -140,6 +149,9 @@ class PitchEvidence:
         Loaded, when the edges disagree with the lines on the load's face: the face's pitch (rad), at which
         the pose may be searched again, as the edges are searched around the pitch they are predicted at;
         never a measurement (NaN otherwise).
+    highlights : tuple of float
+        Each edge's median highlight (:func:`edge_highlights`): the brightest grey level (0-255) within a few pixels
+        of its points along their rows (NaN for an edge not found).
     """
 
     hypothesis: str
@@ -157,6 +169,7 @@ class PitchEvidence:
     face_points: Array | None = None
     note: str = ""
     lead: float = math.nan
+    highlights: tuple[float, ...] = ()
 
 
 def unloaded_evidence(
@@ -177,10 +190,17 @@ def unloaded_evidence(
     ]
     pair = _evidence("unloaded", gray, camera, camera_in_fork, pallet_in_fork, segments, 0, config, anchored=True,
                      colour=colour)
-    if not pair.valid or pair.sigma <= config.edge_max_sigma:
+    if not pair.valid:
         return pair
-    note = (f"the deck edges give the pitch only to +-{math.degrees(pair.sigma):.2f} deg (at most "
-            f"{math.degrees(config.edge_max_sigma):.3f}): their points wander off the lines")
+    if pair.sigma > config.edge_max_sigma:
+        note = (f"the deck edges give the pitch only to +-{math.degrees(pair.sigma):.2f} deg (at most "
+                f"{math.degrees(config.edge_max_sigma):.3f}): their points wander off the lines")
+    elif min(pair.highlights) >= config.max_deck_highlight:
+        note = (f"the top deck is overexposed beside both its edges (grey {pair.highlights[0]:.0f} and "
+                f"{pair.highlights[1]:.0f} of 255; below {config.max_deck_highlight:.0f} on one side at least): "
+                "clipped highlights move the edges' lines; lower the camera's exposure")
+    else:
+        return pair
     return dataclasses.replace(pair, valid=False, pitch=math.nan, direction=np.full(3, np.nan), note=note)
 
 
@@ -616,12 +636,14 @@ def _evidence(
 
 
 class _EdgePoints(NamedTuple):
-    """Edge points of a panorama (:func:`_edge_points`): directions (N, 3), strong (N,), columns and rows (N,)."""
+    """Edge points of a panorama (:func:`_edge_points`): directions (N, 3), strong (N,), columns and rows (N,), and
+    the highlight beside each (N,)."""
 
     directions: Array
     strong: NDArray[np.bool_]
     columns: Array
     rows: Array
+    highlight: Array
 
 
 def _evidences(
@@ -685,19 +707,21 @@ class _Search:
 
 class _Edge(NamedTuple):
     """One edge of a pair (:func:`_edge`): its line (the fit along the reach where there was one), a rival line
-    beside it that the anchor does not rule out, its tilt (:func:`tilt_sigma`) and its support ratio."""
+    beside it that the anchor does not rule out, its tilt (:func:`tilt_sigma`), its support ratio and the median
+    highlight beside its points (:func:`_edge_points`)."""
 
     line: SphereLine | None
     rival: SphereLine | None
     tilt: tuple[Array, float] | None
     ratio: float
+    highlight: float
 
 
 def _edge(search: _Search, segment: Array, far: Array, region: Array, reach_region: Array) -> _Edge:
     """The edge along ``segment`` (camera frame) in its predicted ``region``, followed along ``far`` (its
     ``reach_region``) for its fit."""
     panorama, config = search.panorama, search.config
-    directions, strong, columns, rows = search.points
+    directions, strong, columns, rows, highlights = search.points
     inside = _inside(region, columns, rows)
     lon = (
         panorama.angles_from_pixels(region[None, [0, 2]])[0][0],
@@ -708,7 +732,7 @@ def _edge(search: _Search, segment: Array, far: Array, region: Array, reach_regi
     ones = np.ones(len(fitted))
     line = _line(panorama, fitted, ones, lon, config)
     if line is None:
-        return _Edge(None, None, None, 0.0)
+        return _Edge(None, None, None, 0.0, math.nan)
     rival = _rival_nearby(panorama, fitted, ones, line, lon, config)
     anchor = _unit(segment[:1])[0] if search.anchored else None
     if rival is not None and _anchor_decides(line, rival, anchor, panorama, config):
@@ -720,7 +744,8 @@ def _edge(search: _Search, segment: Array, far: Array, region: Array, reach_regi
                       fit.normal if fit is not None else line.normal)
     length = max(region[3] - region[2], 1.0)
     ratio = min(_support(line, corrected, rows[inside], panorama, config) / length, 1.0)
-    return _Edge(fit if fit is not None else line, rival, tilt, ratio)
+    highlight = float(np.median(highlights[inside][strong[inside]][line.inliers]))
+    return _Edge(fit if fit is not None else line, rival, tilt, ratio, highlight)
 
 
 def _pair_evidence(
@@ -734,7 +759,8 @@ def _pair_evidence(
     ratio = float(min(e.ratio for e in edges))
     nan = np.full(3, np.nan)
     found = functools.partial(PitchEvidence, search.hypothesis, ratio, panorama=search.panorama, regions=regions,
-                              lines=lines, face_points=search.face_points)
+                              lines=lines, face_points=search.face_points,
+                              highlights=tuple(e.highlight for e in edges))
     if len(lines) < 2 or ratio < config.min_ratio:
         return found(False, math.nan, nan)
     pitches = []
@@ -951,7 +977,21 @@ def _edge_points(
         columns, rows, c, needed = columns[kept], rows[kept], c[kept], needed[kept]
     directions = np.full((len(rows), 3), np.nan)
     directions[needed] = panorama.directions_from_pixels(np.stack([columns[needed], rows[needed]], axis=1))
-    return directions, c > threshold, columns, rows
+    return directions, c > threshold, columns, rows, edge_highlights(image, columns, rows, needed)
+
+
+HIGHLIGHT_REACH = 4  # panorama pixels either side of an edge point along its row
+
+
+def edge_highlights(image: NDArray[np.float32], columns: Array, rows: Array, needed: NDArray[np.bool_]) -> Array:
+    """The brightest grey level of ``image`` within :data:`HIGHLIGHT_REACH` pixels of each ``needed`` edge point
+    along its row (N,), NaN for the others."""
+    out = np.full(len(rows), np.nan)
+    r = rows[needed].astype(int)
+    window = np.clip(np.round(columns[needed]).astype(int)[:, None] + np.arange(-HIGHLIGHT_REACH, HIGHLIGHT_REACH + 1),
+                     0, image.shape[1] - 1)
+    out[needed] = image[r[:, None], window].max(axis=1)
+    return out
 
 
 CLIPPED = 250  # a colour channel this bright may be clipped

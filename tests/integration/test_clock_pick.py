@@ -244,8 +244,16 @@ def test_regression_campaign_pick_386_of_seed_7_ends_refused_not_in_the_pallet()
 # was accepted 0.1004 deg off once the face's edges were read in colour. Picks 52 and 177 were fixed on 2026-11-26
 # (session 24): test_regression_campaign_picks_of_seed_7_with_a_loose_pitch_accept_no_measurement_outside_bounds.
 # Pick 386 of the 1000-pick campaign (session 26) collided: an unloaded pallet pitched 2.28 deg accepted 1.58 deg low,
-# its verifying frames 35-37 mm off in height.
-OPEN_CAMPAIGN_WRONG_ACCEPTS = (38, 55, 139, 159, 386)
+# its verifying frames 35-37 mm off in height. Pick 38 was fixed in session 28:
+# test_regression_campaign_pick_38_of_seed_7_an_overexposed_deck_gives_no_pitch.
+OPEN_CAMPAIGN_WRONG_ACCEPTS = (55, 139, 159, 386)
+
+
+def test_regression_campaign_pick_38_of_seed_7_an_overexposed_deck_gives_no_pitch():
+    """Pick 38 accepted an unloaded pallet 0.146 deg off in pitch: its deck, grey 250 beside both edges, read both
+    edges outwards (clipped highlights under blur and JPEG). A deck that bright now gives no pitch
+    (PitchConfig.max_deck_highlight)."""
+    assert_no_measurement_outside_bounds(7, 38)
 
 
 @pytest.mark.parametrize("index", (52, 177))

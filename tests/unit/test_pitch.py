@@ -14,9 +14,11 @@ from agf.pallets import load_pallets
 from agf.paths import DEFAULT_CONFIG
 from agf.vision.hough import SphereLine, fit_plane_normal
 from agf.vision.pitch import (
+    HIGHLIGHT_REACH,
     PitchEvidence,
     deck_corner_misses,
     direction_of_parallel_lines,
+    edge_highlights,
     pose_from_deck_edges,
     tilt_sigma,
     unclipped_edge_columns,
@@ -221,6 +223,18 @@ def test_edges_beside_clipping_in_every_channel_are_dropped_and_those_away_from_
     unclipped = _overexposed_step(30.3, (150.0, 180.0, 200.0))
     columns = np.array([_grey_edge_column(unclipped), 12.0])
     assert np.array_equal(unclipped_edge_columns(unclipped, columns, np.array([4.0, 4.0]), threshold=10.0), columns)
+
+
+def test_an_edge_point_reads_the_brightest_grey_within_reach_along_its_row_only():
+    """PitchConfig.max_deck_highlight refuses deck edges beside grey this close to 255 (campaign seed 7 pick 38)."""
+    image = np.full((3, 40), 100.0, np.float32)
+    image[1, 20:] = 250.0  # a deck nearly clipped right of column 20, on the middle row only
+    columns = np.array([19.6, 19.6, 20.0 - HIGHLIGHT_REACH - 1.0, 20.0 - HIGHLIGHT_REACH, 30.0])
+    rows = np.array([1.0, 0.0, 1.0, 1.0, 1.0])
+    needed = np.array([True, True, True, True, False])
+    highlights = edge_highlights(image, columns, rows, needed)
+    np.testing.assert_array_equal(highlights[:4], [250.0, 100.0, 100.0, 250.0])
+    assert np.isnan(highlights[4])
 
 
 def test_no_load_top_is_searched_where_the_camera_is_not_above_the_lowest_one():
