@@ -708,7 +708,7 @@ class _Search:
 class _Edge(NamedTuple):
     """One edge of a pair (:func:`_edge`): its line (the fit along the reach where there was one), a rival line
     beside it that the anchor does not rule out, its tilt (:func:`tilt_sigma`), its support ratio and the median
-    highlight beside its points (:func:`_edge_points`)."""
+    highlight beside its points (:func:`edge_highlights`)."""
 
     line: SphereLine | None
     rival: SphereLine | None
