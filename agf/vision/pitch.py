@@ -987,11 +987,15 @@ def edge_highlights(image: NDArray[np.float32], columns: Array, rows: Array, nee
     """The brightest grey level of ``image`` within :data:`HIGHLIGHT_REACH` pixels of each ``needed`` edge point
     along its row (N,), NaN for the others."""
     out = np.full(len(rows), np.nan)
-    r = rows[needed].astype(int)
-    window = np.clip(np.round(columns[needed]).astype(int)[:, None] + np.arange(-HIGHLIGHT_REACH, HIGHLIGHT_REACH + 1),
-                     0, image.shape[1] - 1)
-    out[needed] = image[r[:, None], window].max(axis=1)
+    window = _row_windows(columns[needed], HIGHLIGHT_REACH, image.shape[1])
+    out[needed] = image[rows[needed].astype(int)[:, None], window].max(axis=1)
     return out
+
+
+def _row_windows(columns: Array, reach: int, width: int) -> NDArray[np.int_]:
+    """The columns (N, 2 reach + 1) within ``reach`` of each of ``columns`` (rounded), clipped to a row ``width``
+    wide."""
+    return np.clip(np.round(columns).astype(int)[:, None] + np.arange(-reach, reach + 1), 0, width - 1)
 
 
 CLIPPED = 250  # a colour channel this bright may be clipped
@@ -1007,8 +1011,7 @@ def unclipped_edge_columns(
     Blur spreads an overexposed surface's light past its outline before the sensor clips it, so the
     gradient maximum of a clipped channel (and of the grey made from it) lies outside the outline."""
     r = rows.astype(int)
-    centre = np.round(columns).astype(int)
-    window = np.clip(centre[:, None] + np.arange(-reach, reach + 1), 0, colour.shape[1] - 1)  # (N, W)
+    window = _row_windows(columns, reach, colour.shape[1])  # (N, W)
     clipped = colour[r[:, None], window].max(axis=1) >= CLIPPED  # (N, 3)
     near = np.flatnonzero(clipped.any(axis=1))
     if near.size == 0:
