@@ -9,6 +9,7 @@ from __future__ import annotations
 import time
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -37,13 +38,22 @@ def exposure_problem(image: NDArray[np.uint8]) -> str | None:
     return None
 
 
+class JpegImage(NamedTuple):
+    """A frame as a camera sent it compressed: the ``image`` its JPEG ``data`` decode to (what is measured)."""
+
+    image: NDArray[np.uint8]
+    data: bytes
+
+
 @dataclass(frozen=True)
 class Frame:
-    """One fisheye frame: BGR or grey uint8 pixels, when it was taken (monotonic s), its number."""
+    """One fisheye frame: BGR or grey uint8 pixels, when it was taken (monotonic s), its number, and the JPEG
+    the camera sent when it sent one (``image`` is its decoding: the recorder keeps the JPEG, exact and small)."""
 
     image: NDArray[np.uint8]
     timestamp: float
     index: int
+    jpeg: bytes | None = None
 
 
 class FrameSource(ABC):
@@ -56,7 +66,8 @@ class FrameSource(ABC):
     def read(self, timeout: float = 1.0) -> Frame:
         """The next frame; :class:`FrameLost` with the reason if none arrives, it has the wrong size, or it
         is black or saturated."""
-        image = self._read(timeout)
+        sent = self._read(timeout)
+        image, jpeg = (sent.image, sent.data) if isinstance(sent, JpegImage) else (sent, None)
         if image is None:
             raise FrameLost(f"{self.describe()}: no frame within {timeout:.2f} s")
         if image.shape[:2] != (self.height, self.width) or image.dtype != np.uint8:
@@ -68,7 +79,7 @@ class FrameSource(ABC):
         if problem is not None:
             raise FrameLost(f"{self.describe()}: {problem}")
         self._count += 1
-        return Frame(image, time.monotonic(), self._count)
+        return Frame(image, time.monotonic(), self._count, jpeg)
 
     def describe(self) -> str:
         return type(self).__name__
@@ -77,5 +88,6 @@ class FrameSource(ABC):
         """Release the device or file."""
 
     @abstractmethod
-    def _read(self, timeout: float) -> NDArray[np.uint8] | None:
-        """One frame, or None when none is available within ``timeout`` s."""
+    def _read(self, timeout: float) -> NDArray[np.uint8] | JpegImage | None:
+        """One frame (a :class:`JpegImage` when the camera sent it compressed), or None when none is available
+        within ``timeout`` s."""

@@ -6,8 +6,9 @@ as metadata), so a folder of logs from trucks is a regression test on real frame
 vision that moves a measurement shows here as a difference.
 
 The pick measured without a prior (as the simulated world does), and so does the replay. Frames are
-logged losslessly (PNG), so with unchanged code the replay reproduces the logged measurement to the
-last digit; :data:`TOLERANCE_MM` and :data:`TOLERANCE_DEG` only absorb floating-point noise.
+logged as the camera sent them (its JPEG, whose decoding is what the pick measured, or PNG), so with
+unchanged code the replay reproduces the logged measurement to the last digit; :data:`TOLERANCE_MM` and
+:data:`TOLERANCE_DEG` only absorb floating-point noise.
 """
 
 from __future__ import annotations

@@ -44,6 +44,7 @@ from numpy.typing import NDArray
 
 from agf.camera import CameraModel, load_camera
 from agf.config import ForkGeometry
+from agf.frames import JpegImage
 from agf.scene import Scene
 from drivers.sim import render as reference
 from drivers.sim.kernels import CORNERS, cast_tiled, gather_hits, pack_objects, tile_lists
@@ -141,6 +142,17 @@ def render_fast(
 ) -> tuple[NDArray[np.uint8], dict[str, Any]]:
     """The frame :func:`drivers.sim.render.render` draws, at a fraction of its cost (see the module)."""
     camera = camera or load_camera(scene.camera)
+    return reference.pixels_sent(camera_output(scene, camera, forks, shading)), reference.truth(scene, camera)
+
+
+def camera_output(
+    scene: Scene,
+    camera: CameraModel,
+    forks: ForkGeometry | None = None,
+    shading: Literal["photo", "geometry"] = "photo",
+) -> NDArray[np.uint8] | JpegImage:
+    """What the simulated camera sends of ``scene`` (:func:`render_fast`'s frame): its JPEG where the scene's
+    sensor compresses, else the pixels."""
     forks = forks or ForkGeometry()
     rng = np.random.default_rng(scene.seed)
     look = draw_look(scene) if scene.look == "random" else None
@@ -148,12 +160,10 @@ def render_fast(
     shader = _shader(scene, shading, look, objects, pallets)
     image = _trace(camera, objects, pallets, _region(scene, camera, forks), *shader)
     if shading == "geometry":
-        image = np.clip(np.round(image), 0, 255).astype(np.uint8)
-    elif look is None:
-        image = reference._sensor(image, scene, rng)
-    else:
-        image = reference.develop_look(image, look, rng)
-    return image, reference.truth(scene, camera)
+        return np.clip(np.round(image), 0, 255).astype(np.uint8)
+    if look is None:
+        return reference._sensor(image, scene, rng)
+    return reference.develop_look(image, look, rng)
 
 
 def _shader(

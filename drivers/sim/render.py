@@ -33,6 +33,7 @@ from threadpoolctl import threadpool_limits
 
 from agf.camera import CameraModel, load_camera
 from agf.config import ForkGeometry
+from agf.frames import JpegImage
 from agf.geometry import Transform
 from agf.pallets import PalletType, load_pallets, pallet_type
 from agf.paths import repo_path
@@ -94,10 +95,10 @@ def render(
     if look is None:
         shade = functools.partial(_shade, lights=_lights(objects))
         image = _trace(camera, objects, pallets, offsets, scene.environment.light, shade, VIGNETTING)
-        return _sensor(image, scene, rng), truth(scene, camera)
+        return pixels_sent(_sensor(image, scene, rng)), truth(scene, camera)
     shade = functools.partial(_shade_look, look_arrays(look, look.camera_lights(scene), objects, pallets))
     image = _trace(camera, objects, pallets, offsets, scene.environment.light * look.exposure, shade, look.vignetting)
-    return _sensor_look(image, look, rng), truth(scene, camera)
+    return pixels_sent(_sensor_look(image, look, rng)), truth(scene, camera)
 
 
 def truth(scene: Scene, camera: CameraModel) -> dict[str, Any]:
@@ -521,20 +522,28 @@ def _vignetting(camera: CameraModel, directions: Array, strength: float) -> Arra
     return 1.0 - strength * (incidence / camera.max_incidence) ** 2
 
 
-def _sensor(image: Array, scene: Scene, rng: np.random.Generator) -> NDArray[np.uint8]:
+def _sensor(image: Array, scene: Scene, rng: np.random.Generator) -> NDArray[np.uint8] | JpegImage:
     noise = scene.noise
     if noise.blur_px > 0:
         image = cv2.GaussianBlur(image, (0, 0), noise.blur_px)
     if noise.sigma > 0:
         image = image + noise.sigma * rng.standard_normal(image.shape, dtype=np.float32)
     out = np.clip(np.round(image), 0, 255).astype(np.uint8)
-    if noise.jpeg_quality is not None:
-        ok, data = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, noise.jpeg_quality])
-        out = cv2.imdecode(data, cv2.IMREAD_COLOR)
-    return out
+    return out if noise.jpeg_quality is None else jpeg_sent(out, noise.jpeg_quality)
 
 
-def _sensor_look(image: Array, look: Look, rng: np.random.Generator) -> NDArray[np.uint8]:
+def jpeg_sent(pixels: NDArray[np.uint8], quality: int) -> JpegImage:
+    """What a camera that compresses at JPEG ``quality`` (1..100) sends of ``pixels``: the JPEG and its decoding."""
+    ok, data = cv2.imencode(".jpg", pixels, [cv2.IMWRITE_JPEG_QUALITY, quality])
+    return JpegImage(cv2.imdecode(data, cv2.IMREAD_COLOR), data.tobytes())
+
+
+def pixels_sent(sent: NDArray[np.uint8] | JpegImage) -> NDArray[np.uint8]:
+    """The pixels a receiver of the camera's output ``sent`` measures."""
+    return sent.image if isinstance(sent, JpegImage) else sent
+
+
+def _sensor_look(image: Array, look: Look, rng: np.random.Generator) -> NDArray[np.uint8] | JpegImage:
     """A random look's camera: white balance, then :func:`develop_look`."""
     image = image.astype(np.float32) * white_balance(look)
     return develop_look(np.maximum(image, 0.0, out=image), look, rng)
@@ -545,11 +554,11 @@ def white_balance(look: Look) -> NDArray[np.float32]:
     return (np.asarray(look.white_balance) / 255.0).astype(np.float32)
 
 
-def develop_look(image: NDArray[np.float32], look: Look, rng: np.random.Generator) -> NDArray[np.uint8]:
+def develop_look(image: NDArray[np.float32], look: Look, rng: np.random.Generator) -> NDArray[np.uint8] | JpegImage:
     """A random look's camera after the white balance (``image`` (H, W, 3), float32, not negative; it is
     overwritten): gamma, motion blur (vertical: the forks move), optics blur, noise growing with
     brightness (shot noise), 8-bit rounding and JPEG (float32 OpenCV work in place: a frame has 11
-    million values)."""
+    million values). The camera's output: its JPEG where the look compresses, else the pixels."""
     _gamma(image, look.gamma)
     if look.motion_px > 0:
         length = 2 * int(math.ceil(look.motion_px)) + 1
@@ -564,10 +573,7 @@ def develop_look(image: NDArray[np.float32], look: Look, rng: np.random.Generato
         rows = slice(top, min(top + NOISE_ROWS, len(image)))
         band = cv2.randn(noise[: rows.stop - top], 0.0, look.sigma)
         add_shot_noise(image[rows].reshape(-1), band.reshape(-1), out[rows].reshape(-1))
-    if look.jpeg_quality is not None:
-        ok, data = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, look.jpeg_quality])
-        out = cv2.imdecode(data, cv2.IMREAD_COLOR)
-    return out
+    return out if look.jpeg_quality is None else jpeg_sent(out, look.jpeg_quality)
 
 
 def _gamma(image: NDArray[np.float32], gamma: float) -> None:

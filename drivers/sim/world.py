@@ -29,7 +29,7 @@ from agf.clock import Clock, SimulatedClock, WallClock
 from agf.config import Config, SearchVolume, load_calibration
 from agf.controller import ControllerConfig, PickController, PickResult
 from agf.errors import ConfigError, DriveFault, MeasurementError
-from agf.frames import Frame, FrameSource
+from agf.frames import Frame, FrameSource, JpegImage
 from agf.geometry import Transform
 from agf.kinematics import MastGeometry, fork_in_truck_from_axes
 from agf.measurement import PalletMeasurement
@@ -47,7 +47,7 @@ from drivers.cia402_axis import axes_from_config
 from drivers.sim.campaign import make_backend, run_campaign
 from drivers.sim.collision import clearance, pallet_parts, tine_surface
 from drivers.sim.drive import start_simulated_drives
-from drivers.sim.fast_render import render_fast
+from drivers.sim.fast_render import camera_output
 
 # Axes at the start of a pick (m, rad): reach 0.15 m leaves the 1.3 m stroke room for a pallet 400 mm
 # ahead plus 850 mm of stand-off and insertion (at 0.3 m, six of 200 random picks were out of reach).
@@ -64,14 +64,14 @@ class RenderedCamera(FrameSource):
     def describe(self) -> str:
         return "simulated camera"
 
-    def _read(self, timeout: float) -> np.ndarray | None:
+    def _read(self, timeout: float) -> np.ndarray | JpegImage | None:
         if self.world.frames_lost:
             self.world.frames_lost -= 1
             return None
         scene = self.world.scene_now()
-        image, _ = render_fast(scene, self.world.camera)
+        sent = camera_output(scene, self.world.camera)
         self.world.frame_truths.append(scene.pallet.in_fork)
-        return image
+        return sent
 
 
 class SimulatedWorld:

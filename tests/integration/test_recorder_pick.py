@@ -82,6 +82,7 @@ def test_a_pick_killed_mid_motion_leaves_its_log_readable_up_to_the_kill(killed_
 
 def test_replay_reproduces_the_logged_measurement(killed_pick) -> None:
     log, _ = killed_pick
+    assert log.on("/camera/image")[0].data["format"] == "jpeg"  # as the simulated camera sent it
     result = replay_log(log)
     assert result["ok"], result
     assert result["measurements"][0]["stage"] == "measuring"

@@ -3,6 +3,7 @@ a readable file, and the retention rule of the log folder."""
 
 from __future__ import annotations
 
+import base64
 import fcntl
 import json
 import math
@@ -14,6 +15,7 @@ import textwrap
 import time
 from pathlib import Path
 
+import cv2
 import jsonschema
 import numpy as np
 import pytest
@@ -22,7 +24,7 @@ from mcap.reader import make_reader
 from agf.axis import AxisFeedback, AxisState
 from agf.config import load_config
 from agf.errors import ConfigError, InputError
-from agf.frames import Frame
+from agf.frames import Frame, FrameSource, JpegImage
 from agf.geometry import Transform
 from agf.insertion import InsertionPlan
 from agf.measurement import PalletMeasurement
@@ -70,6 +72,34 @@ def write_pick(path: Path) -> np.ndarray:
         log.measurement("verifying", frame, None, "no pallet edges found")
         log.state("fault", "abort", "verifying: no pallet edges found")
     return image
+
+
+class _JpegCamera(FrameSource):
+    """A camera that sends JPEG: the frame it sends is the decoding of its JPEG."""
+
+    def __init__(self, pixels: np.ndarray) -> None:
+        super().__init__(pixels.shape[1], pixels.shape[0])
+        ok, data = cv2.imencode(".jpg", pixels, [cv2.IMWRITE_JPEG_QUALITY, 80])
+        self.sent = JpegImage(cv2.imdecode(data, cv2.IMREAD_COLOR), data.tobytes())
+
+    def _read(self, timeout: float) -> JpegImage:
+        return self.sent
+
+
+def test_a_frame_the_camera_sent_as_jpeg_is_logged_as_that_jpeg_and_decodes_to_the_pixels_measured(
+    tmp_path: Path,
+) -> None:
+    pixels = cv2.GaussianBlur(np.random.default_rng(5).integers(0, 255, (96, 128, 3), dtype=np.uint8), (0, 0), 2.0)
+    camera = _JpegCamera(pixels)
+    frame = camera.read()
+    assert frame.jpeg == camera.sent.data and frame.image is camera.sent.image
+    assert not np.array_equal(frame.image, pixels)  # JPEG is lossy: what is measured is the decoding
+    with McapRecorder(tmp_path / "pick.mcap", SETUP, context={"command": "test"}) as log:
+        log.frame(frame)
+    [logged] = read_log(tmp_path / "pick.mcap").on("/camera/image")
+    assert logged.data["format"] == "jpeg"
+    assert base64.b64decode(logged.data["data"]) == camera.sent.data
+    assert np.array_equal(decode_frame(logged), frame.image)
 
 
 def test_a_log_holds_every_event_and_foxglove_schemas_describe_it(tmp_path: Path) -> None:
