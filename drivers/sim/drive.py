@@ -84,6 +84,48 @@ _DEFAULTS = {  # used when the object dictionary in use has no such object (coun
 _TARGET_WINDOW = 2.0  # counts: "target reached"
 
 
+class DriveConnection:
+    """One connection to the bus that the simulated drives of a process share (:func:`start_simulated_drives`).
+
+    python-can's virtual bus copies every frame to each connection and each connection's notifier thread
+    wakes up for it: with three drives, the master and the CAN tap on their own connections, each frame
+    was copied four times; with the drives on one, twice (the CAN threads took 12 % of a simulated
+    pick's CPU). Each drive is still a node of its own on the bus. The network connects with the first
+    drive to start and disconnects when the last one closes; a drive that closes (or goes silent) drops
+    its own subscriptions only.
+    """
+
+    def __init__(self, bus: can.BusABC, clock: Clock) -> None:
+        self.network = ClockedNetwork(bus, clock)
+        self.network.NOTIFIER_CYCLE = 0.02  # how long closing waits for the receive thread (0.1 s: 0.4 s a pick)
+        self._drives = 0
+        self._lock = threading.Lock()
+
+    def join(self) -> None:
+        """A drive starts on the connection (the first one connects it)."""
+        with self._lock:
+            if self._drives == 0:
+                self.network.connect()
+                raise_receive_priority(self.network, DRIVE_PRIORITY)
+            self._drives += 1
+
+    def leave(self, owners: Sequence[object]) -> None:
+        """A drive leaves: every subscription whose callback is bound to one of ``owners`` (the drive and its
+        node's services) is dropped; the last drive to leave disconnects the network."""
+        ids = {id(owner) for owner in owners}
+        with self._lock:
+            subscribers = self.network.subscribers
+            for can_id, callbacks in list(subscribers.items()):
+                kept = [c for c in callbacks if id(getattr(c, "__self__", None)) not in ids]
+                if kept:
+                    subscribers[can_id] = kept  # a new list: the receive thread may be iterating the old one
+                else:
+                    del subscribers[can_id]
+            self._drives = max(self._drives - 1, 0)  # a drive closed before it started never joined
+            if self._drives == 0 and self.network.bus is not None:
+                self.network.disconnect()
+
+
 class SimDrive:
     """One simulated CiA 402 drive on a CAN bus.
 
@@ -91,8 +133,8 @@ class SimDrive:
     ----------
     node_id : int
         CANopen node id, 1..127.
-    bus : can.BusABC
-        Its own connection to the bus (closed by :meth:`close`).
+    bus : can.BusABC or DriveConnection
+        Its own connection to the bus (closed by :meth:`close`), or one it shares with other drives.
     eds : path, optional
         Object dictionary; default ``configs/eds/agf_axis.eds``.
     cycle : float
@@ -103,12 +145,12 @@ class SimDrive:
         The time its heartbeat and supervision keep; the wall clock by default.
     """
 
-    def __init__(self, node_id: int, bus: can.BusABC, eds: str | Path = DEFAULT_EDS, *,
+    def __init__(self, node_id: int, bus: can.BusABC | DriveConnection, eds: str | Path = DEFAULT_EDS, *,
                  cycle: float = 0.01, lag: float = 0.02, clock: Clock | None = None) -> None:
         self.node = canopen.LocalNode(node_id, load_object_dictionary(eds, node_id))
         self.clock = clock or WallClock()
-        self.network = ClockedNetwork(bus, self.clock)
-        self.network.NOTIFIER_CYCLE = 0.02  # how long closing waits for the receive thread (0.1 s: 0.4 s a pick)
+        self._connection = bus if isinstance(bus, DriveConnection) else DriveConnection(bus, self.clock)
+        self.network = self._connection.network
         self.network.add_node(self.node)
         self._lock = threading.RLock()
         self._cycle, self._lag = cycle, lag
@@ -150,7 +192,7 @@ class SimDrive:
         self._supervisor: Periodic | None = None
 
     @classmethod
-    def open(cls, node_id: int, bus: can.BusABC, **kwargs: Any) -> SimDrive:
+    def open(cls, node_id: int, bus: can.BusABC | DriveConnection, **kwargs: Any) -> SimDrive:
         """Create the drive, connect it and boot it (boot-up message, PRE-OPERATIONAL)."""
         drive = cls(node_id, bus, **kwargs)
         drive.start()
@@ -158,8 +200,7 @@ class SimDrive:
 
     def start(self) -> None:
         """Connect to the bus and boot: boot-up message, PRE-OPERATIONAL, heartbeat from 0x1017."""
-        self.network.connect()
-        raise_receive_priority(self.network, DRIVE_PRIORITY)
+        self._connection.join()
         self._boot()
         self._supervised_at = self.clock.monotonic()
         self._supervisor = self.clock.every(0.005, self._supervise, f"sim-drive-{self.node.id}")
@@ -179,13 +220,16 @@ class SimDrive:
             raise_priority(task.thread, DRIVE_PRIORITY)
 
     def close(self) -> None:
-        """Stop everything and release the bus."""
+        """Stop everything and leave the bus (its own connection closes; a shared one, with its last drive).
+        Closing again does nothing (a drive that went silent is closed with its network later)."""
+        if self._stop.is_set():
+            return
         self._stop.set()
         self.node.nmt.stop_heartbeat()
         if self._supervisor is not None:
             self._supervisor.cancel()
-        if self.network.bus is not None:
-            self.network.disconnect()
+        node = self.node
+        self._connection.leave([self, node, node.nmt, node.sdo, node.emcy, node.tpdo, node.rpdo])
 
     # -- fault injection and test hooks ------------------------------------------------------------
     def inject_fault(self, code: int = INJECTED) -> None:
@@ -559,12 +603,11 @@ def start_simulated_drives(
     drives: Sequence[DriveSettings], bus_mapping: Any, settings: NetworkSettings, where: str,
     clock: Clock | None = None,
 ) -> list[SimDrive]:
-    """A simulated drive per configured axis, in this process, each on its own connection to the bus
-    (a :data:`drivers.cia402_axis.DriveStarter`: the default configuration's ``plugins.drives``),
-    keeping ``clock``'s time (the wall clock by default)."""
-    return [SimDrive.open(d.node_id, open_bus(bus_mapping, f"{where} bus"), eds=d.eds, cycle=settings.cycle,
-                          clock=clock)
-            for d in drives]
+    """A simulated drive per configured axis, in this process, all on one connection to the bus
+    (:class:`DriveConnection`; a :data:`drivers.cia402_axis.DriveStarter`: the default configuration's
+    ``plugins.drives``), keeping ``clock``'s time (the wall clock by default)."""
+    connection = DriveConnection(open_bus(bus_mapping, f"{where} bus"), clock or WallClock())
+    return [SimDrive.open(d.node_id, connection, eds=d.eds, cycle=settings.cycle, clock=clock) for d in drives]
 
 
 def _command(word: int) -> str:

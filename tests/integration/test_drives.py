@@ -377,6 +377,30 @@ def test_axes_from_config_with_simulated_drives() -> None:
         net.close()
 
 
+def test_simulated_drives_share_one_connection_and_one_going_silent_leaves_the_others_answering() -> None:
+    bus = {"interface": "virtual", "channel": f"shared-{os.getpid()}-{next(_channels)}"}
+    drives = start_simulated_drives([DriveSettings(n, i, DEFAULT_EDS, SCALE, LIMITS, 0.05)
+                                     for n, i in (("lift", 4), ("tilt", 5))], bus, NetworkSettings(), "test")
+    network = canopen.Network(can.Bus(**bus))
+    network.connect()
+    try:
+        assert drives[0].network is drives[1].network  # one connection, two nodes on it
+        nodes = [network.add_node(canopen.RemoteNode(i, str(DEFAULT_EDS))) for i in (4, 5)]
+        for node in nodes:
+            node.sdo.RESPONSE_TIMEOUT = 0.2
+        assert [node.sdo[0x1000].raw for node in nodes] == [drives[0].node.sdo[0x1000].raw] * 2
+        drives[0].go_silent()
+        with pytest.raises(canopen.SdoCommunicationError):
+            nodes[0].sdo[0x1000].raw  # noqa: B018 - the read is the test
+        assert nodes[1].sdo[0x1000].raw == drives[1].node.sdo[0x1000].raw
+        assert drives[1].network.bus is not None  # still connected for the drive that is left
+    finally:
+        for drive in drives:
+            drive.close()
+        network.disconnect()
+    assert drives[0].network.bus is None  # the last drive to close disconnected it
+
+
 @pytest.mark.parametrize("change, message", [
     ({"node_id": 0}, "node_id must be 1..127"),
     ({"counts_per_m": 0}, "counts per unit"),
