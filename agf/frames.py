@@ -45,6 +45,11 @@ class JpegImage(NamedTuple):
     data: bytes
 
 
+def pixels_sent(sent: NDArray[np.uint8] | JpegImage) -> NDArray[np.uint8]:
+    """The pixels a receiver of a camera's output ``sent`` measures: a JPEG's decoding, else the pixels themselves."""
+    return sent.image if isinstance(sent, JpegImage) else sent
+
+
 @dataclass(frozen=True)
 class Frame:
     """One fisheye frame: BGR or grey uint8 pixels, when it was taken (monotonic s), its number, and the JPEG
@@ -67,7 +72,7 @@ class FrameSource(ABC):
         """The next frame; :class:`FrameLost` with the reason if none arrives, it has the wrong size, or it
         is black or saturated."""
         sent = self._read(timeout)
-        image, jpeg = (sent.image, sent.data) if isinstance(sent, JpegImage) else (sent, None)
+        image, jpeg = pixels_sent(sent), sent.data if isinstance(sent, JpegImage) else None
         if image is None:
             raise FrameLost(f"{self.describe()}: no frame within {timeout:.2f} s")
         if image.shape[:2] != (self.height, self.width) or image.dtype != np.uint8:

@@ -5,8 +5,8 @@ control cycle; the simulated world (or a truck's drivers) adds the raw CAN traff
 records nothing; :class:`McapRecorder` writes an MCAP file (https://mcap.dev) that Foxglove and the
 ROS 2 tools open: frames as ``foxglove.CompressedImage`` (as the camera sent them: its JPEG, else PNG,
 so that ``agf replay`` measures exactly the pixels the pick measured), transitions, faults and
-refusals as ``foxglove.Log``, poses as ``foxglove.FrameTransform``, everything else as JSON messages with a JSON schema
-(``docs/recorder.md`` lists the topics).
+refusals as ``foxglove.Log``, poses as ``foxglove.FrameTransform``, everything else as JSON messages
+with a JSON schema (``docs/recorder.md`` lists the topics).
 
 Nothing is lost when the process dies: messages go into small zstd chunks, and a background thread
 closes the chunk in progress, writes it and syncs the file every ``flush_period`` (at most a
@@ -312,7 +312,8 @@ class McapRecorder(Recorder):
 
     def frame(self, frame: Frame) -> None:
         """The frame as the camera sent it: its JPEG when it sent one (the pixels measured are that JPEG's
-        decoding; a 1920 x 1920 PNG took 100 ms to write and 3.6 MB, its JPEG 0.6 MB), else a PNG."""
+        decoding; the default pick's 1920 x 1920 frames: 0.34 MB of JPEG, 2.3 MB and about 100 ms of CPU as
+        PNG), else a PNG."""
         if frame.jpeg is not None:
             data, kind = frame.jpeg, "jpeg"
         else:

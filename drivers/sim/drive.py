@@ -606,7 +606,8 @@ def start_simulated_drives(
     """A simulated drive per configured axis, in this process, all on one connection to the bus
     (:class:`DriveConnection`; a :data:`drivers.cia402_axis.DriveStarter`: the default configuration's
     ``plugins.drives``), keeping ``clock``'s time (the wall clock by default)."""
-    connection = DriveConnection(open_bus(bus_mapping, f"{where} bus"), clock or WallClock())
+    clock = clock or WallClock()
+    connection = DriveConnection(open_bus(bus_mapping, f"{where} bus"), clock)
     return [SimDrive.open(d.node_id, connection, eds=d.eds, cycle=settings.cycle, clock=clock) for d in drives]
 
 

@@ -44,7 +44,7 @@ from numpy.typing import NDArray
 
 from agf.camera import CameraModel, load_camera
 from agf.config import ForkGeometry
-from agf.frames import JpegImage
+from agf.frames import JpegImage, pixels_sent
 from agf.scene import Scene
 from drivers.sim import render as reference
 from drivers.sim.kernels import CORNERS, cast_tiled, gather_hits, pack_objects, tile_lists
@@ -142,7 +142,7 @@ def render_fast(
 ) -> tuple[NDArray[np.uint8], dict[str, Any]]:
     """The frame :func:`drivers.sim.render.render` draws, at a fraction of its cost (see the module)."""
     camera = camera or load_camera(scene.camera)
-    return reference.pixels_sent(camera_output(scene, camera, forks, shading)), reference.truth(scene, camera)
+    return pixels_sent(camera_output(scene, camera, forks, shading)), reference.truth(scene, camera)
 
 
 def camera_output(

@@ -33,7 +33,7 @@ from threadpoolctl import threadpool_limits
 
 from agf.camera import CameraModel, load_camera
 from agf.config import ForkGeometry
-from agf.frames import JpegImage
+from agf.frames import JpegImage, pixels_sent
 from agf.geometry import Transform
 from agf.pallets import PalletType, load_pallets, pallet_type
 from agf.paths import repo_path
@@ -536,11 +536,6 @@ def jpeg_sent(pixels: NDArray[np.uint8], quality: int) -> JpegImage:
     """What a camera that compresses at JPEG ``quality`` (1..100) sends of ``pixels``: the JPEG and its decoding."""
     ok, data = cv2.imencode(".jpg", pixels, [cv2.IMWRITE_JPEG_QUALITY, quality])
     return JpegImage(cv2.imdecode(data, cv2.IMREAD_COLOR), data.tobytes())
-
-
-def pixels_sent(sent: NDArray[np.uint8] | JpegImage) -> NDArray[np.uint8]:
-    """The pixels a receiver of the camera's output ``sent`` measures."""
-    return sent.image if isinstance(sent, JpegImage) else sent
 
 
 def _sensor_look(image: Array, look: Look, rng: np.random.Generator) -> NDArray[np.uint8] | JpegImage:

@@ -37,6 +37,7 @@ from agf.recorder import (
     open_pick_log,
     read_log,
 )
+from drivers.sim.render import jpeg_sent
 from tests.config_copy import config_copy
 
 CONFIG = load_config(DEFAULT_CONFIG)
@@ -79,8 +80,7 @@ class _JpegCamera(FrameSource):
 
     def __init__(self, pixels: np.ndarray) -> None:
         super().__init__(pixels.shape[1], pixels.shape[0])
-        ok, data = cv2.imencode(".jpg", pixels, [cv2.IMWRITE_JPEG_QUALITY, 80])
-        self.sent = JpegImage(cv2.imdecode(data, cv2.IMREAD_COLOR), data.tobytes())
+        self.sent = jpeg_sent(pixels, 80)
 
     def _read(self, timeout: float) -> JpegImage:
         return self.sent
