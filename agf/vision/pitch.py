@@ -54,6 +54,7 @@ class PitchConfig:
     # same direction, hence the same pitch; only where the edge lies stays in doubt
     anchor_tolerance: float = 5.0  # panorama pixels: an edge this close to the point the pose pins ...
     anchor_gap: float = 3.0  # ... beats a rival that misses that point by this many pixels more
+    anchor_lines: int = 2  # lines after the strongest searched for one through that point (_line_through)
     # The lines on the load's face (carton joints, tape, label sides) are parallel to its edges: their
     # common direction gives the loaded pitch from many lines, not from two (see load_face_direction).
     face_inset: float = 4.0  # panorama pixels inside the load edges: a silhouette's gradient maximum
@@ -137,8 +138,9 @@ class PitchEvidence:
         A second strong line runs beside one of the edges (a rack upright next to a load edge, a shadow)
         and gives another pitch: the fit cannot tell which is the edge, so the hypothesis is not valid.
     placed : bool
-        The edges' positions are known too (no line beside them): only then may they move the pose
-        (:func:`pose_from_deck_edges`); a rival that gives the same pitch leaves the pitch valid.
+        The edges' positions are known too (no line beside them, or the deck's front corner picked the line
+        through it): only then may they move the pose (:func:`pose_from_deck_edges`); a rival that gives the same
+        pitch leaves the pitch valid.
     candidates : tuple of float
         The pitches (rad) of the edge pair and of every pair with a rival line in it.
     face_points : (N, 3) array or None
@@ -707,14 +709,16 @@ class _Search:
 
 class _Edge(NamedTuple):
     """One edge of a pair (:func:`_edge`): its line (the fit along the reach where there was one), a rival line
-    beside it that the anchor does not rule out, its tilt (:func:`tilt_sigma`), its support ratio and the median
-    highlight beside its points (:func:`edge_highlights`)."""
+    beside it that the anchor does not rule out, its tilt (:func:`tilt_sigma`), its support ratio, the median
+    highlight beside its points (:func:`edge_highlights`), and whether the anchor ``pinned`` the line among others
+    (:func:`_line_through`; the strongest line is then the rival, which the pitch must agree with)."""
 
     line: SphereLine | None
     rival: SphereLine | None
     tilt: tuple[Array, float] | None
     ratio: float
     highlight: float
+    pinned: bool = False
 
 
 def _edge(search: _Search, segment: Array, far: Array, region: Array, reach_region: Array) -> _Edge:
@@ -735,8 +739,15 @@ def _edge(search: _Search, segment: Array, far: Array, region: Array, reach_regi
         return _Edge(None, None, None, 0.0, math.nan)
     rival = _rival_nearby(panorama, fitted, ones, line, lon, config)
     anchor = _unit(segment[:1])[0] if search.anchored else None
+    pinned = False
     if rival is not None and _anchor_decides(line, rival, anchor, panorama, config):
         rival = None
+    elif rival is not None and _anchor_decides(rival, line, anchor, panorama, config):
+        line, rival = _refit(rival, fitted, ones, panorama, config), None
+    elif rival is None and anchor is not None:
+        through = _line_through(anchor, panorama, fitted, ones, line, lon, config)
+        if through is not None:
+            line, rival, pinned = through, line, True
     along = _inside(reach_region, columns, rows) & strong
     grown = _from_reference_viewpoint(search.camera, directions[along], far)
     fit = refine_line(grown, np.ones(len(grown)), line.normal, config.inlier_tolerance * panorama.pixel_size())
@@ -745,7 +756,7 @@ def _edge(search: _Search, segment: Array, far: Array, region: Array, reach_regi
     length = max(region[3] - region[2], 1.0)
     ratio = min(_support(line, corrected, rows[inside], panorama, config) / length, 1.0)
     highlight = float(np.median(highlights[inside][strong[inside]][line.inliers]))
-    return _Edge(fit if fit is not None else line, rival, tilt, ratio, highlight)
+    return _Edge(fit if fit is not None else line, rival, tilt, ratio, highlight, pinned)
 
 
 def _pair_evidence(
@@ -783,7 +794,7 @@ def _pair_evidence(
         return found(False, math.nan, nan, ambiguous=True, candidates=tuple(pitches))
     sigma = math.hypot(*_pitch_spread_of_tilts(lines, [e.tilt for e in edges], predicted, search.camera_in_fork,
                                                search.pallet_in_fork, search.axis_index), spread / 2)
-    placed = all(e.rival is None for e in edges)
+    placed = all(e.rival is None or e.pinned for e in edges)
     return found(True, pitch, direction, sigma=sigma, placed=placed, candidates=tuple(pitches))
 
 
@@ -897,6 +908,39 @@ def _line(
     """:func:`~agf.vision.hough.hough_line` with the configured inclination range and inlier distance."""
     tolerance = config.inlier_tolerance * panorama.pixel_size()
     return hough_line(panorama, directions, weights, lon, config.tau_max, tolerance=tolerance)
+
+
+def _line_through(
+    anchor: Array, panorama: Panorama, directions: Array, weights: Array, line: SphereLine,
+    lon: tuple[float, float], config: PitchConfig,
+) -> SphereLine | None:
+    """Where the strongest ``line`` misses the point the pose pins (``anchor``) by more than
+    ``anchor_tolerance``: a line among the other edge points that passes through it, at least half as strong,
+    else None.
+
+    A deck seen from above shows lines parallel to its edges inside them (a board's joint, the lit and shaded
+    sides of a chamfer): campaign seed 7, picks 28 and 120, verifying: one deck edge's strongest line ran 40 px
+    (70 mm) inside the edge, the edge itself scored 0.87-1.0 of it and passed 0.3 px from the corner the face's
+    pose put within 2 mm; the pair placed the pallet 65 mm high and was refused.
+    """
+    pixel = panorama.pixel_size()
+    if abs(anchor @ line.normal) / pixel <= config.anchor_tolerance:
+        return None
+    rest = ~line.inliers
+    for _ in range(config.anchor_lines):
+        other = _line(panorama, directions[rest], weights[rest], lon, config)
+        if other is None or other.score < 0.5 * line.score:
+            return None
+        if abs(anchor @ other.normal) / pixel <= config.anchor_tolerance:
+            return _refit(other, directions, weights, panorama, config)
+        rest &= np.abs(directions @ other.normal) >= config.inlier_tolerance * pixel
+    return None
+
+
+def _refit(line: SphereLine, directions: Array, weights: Array, panorama: Panorama, config: PitchConfig) -> SphereLine:
+    """``line``, found among some of the edge points, fitted to all of them (its inliers among all)."""
+    fit = refine_line(directions, weights, line.normal, config.inlier_tolerance * panorama.pixel_size())
+    return fit if fit is not None else line
 
 
 def _anchor_decides(

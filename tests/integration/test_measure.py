@@ -374,3 +374,23 @@ def test_a_load_top_seen_from_above_gives_the_pitch_at_the_true_pose():
                             CATALOGUE[scene.pallet.type], scene.pallet.in_fork, colour=image)
     assert top is not None and top.valid
     assert abs(math.degrees(top.pitch - scene.pallet.in_fork.euler[1])) < 0.05
+
+
+def test_regression_campaign_pick_28_of_seed_7_verifying_a_deck_line_inside_the_edge_is_not_taken_for_it():
+    """One deck edge's strongest line ran 70 mm inside the edge; the deck edges' pose was 73 mm from the face's and
+    the pick was refused at verifying. The line through the deck's front corner, as strong, is the edge."""
+    scene, measurement = measure_random_look("campaign-frames/campaign-7-pick-28-verifying")
+    assert within_bounds(errors(scene, measurement)), errors(scene, measurement)
+    assert not measurement.loaded
+
+
+@pytest.mark.parametrize("pick", [61, 193])
+def test_regression_campaign_picks_of_seed_7_the_deck_edge_through_the_corner_beats_a_stronger_line_beside_it(pick):
+    """A line beside a deck edge, stronger than the edge, missed the deck's front corner that the face's pose pins,
+    and the edge passed through it: the pair was refused for a second line beside the edges. The corner decides
+    either way now, as it did when the stronger line was the one through it (campaign seed 7, first frames)."""
+    scene, image = campaign_first_frame(7, pick)
+    detail = measure_pallet(image, load_camera(scene.camera), scene.camera_in_fork, CATALOGUE[scene.pallet.type],
+                            CONFIG.vision.search, forks=CONFIG.forks)
+    assert within_bounds(errors(scene, detail.measurement)), errors(scene, detail.measurement)
+    assert not detail.measurement.loaded

@@ -252,3 +252,45 @@ def test_no_load_top_is_searched_where_the_camera_is_not_above_the_lowest_one():
     assert load_top_evidence(image, camera, CAMERA_IN_FORK, PALLET, high, config) is None
     low = Transform.from_euler(0.3, 0.0, level - 0.2)
     assert load_top_evidence(image, camera, CAMERA_IN_FORK, PALLET, low, config) is not None
+
+
+def deck_lines_seen(insides: list[float], rng: np.random.Generator):
+    """Edge points (unit directions, camera frame) on the right deck edge of a level pallet 0.3 m ahead of the forks
+    and on lines parallel to it ``insides`` (m) inside it, 0.2 mm of noise; the deck's front corner; the panorama
+    the edges are searched in and its longitude range."""
+    from agf.vision.pitch import PitchConfig, _panorama_over
+
+    in_camera = CAMERA_IN_FORK.inverse() @ Transform.from_euler(0.3, 0.0, 0.0)
+    x = np.linspace(0.03, PALLET.length - 0.03, 300)
+    lines = [np.c_[x, np.full_like(x, PALLET.width / 2 - inside), np.full_like(x, PALLET.deck_top)]
+             for inside in [0.0, *insides]]
+    points = in_camera.apply(np.concatenate(lines) + rng.normal(0.0, 2e-4, (len(x) * len(lines), 3)))
+    corner = in_camera.apply(lines[0][:1])[0]
+    panorama = _panorama_over(in_camera.rotation[:, 0], [in_camera.apply(lines[0])], PitchConfig())
+    ends = panorama.angles_from_pixels(np.array([[0.0, 0.0], [panorama.width - 1.0, 0.0]]))[0]
+    points = points / np.linalg.norm(points, axis=1, keepdims=True)
+    return points, corner / np.linalg.norm(corner), panorama, (float(ends[0]), float(ends[1]))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_regression_a_deck_line_inside_the_edge_gives_way_to_the_edge_through_the_corner(seed):
+    """Campaign seed 7, picks 28 and 120, verifying: the strongest line ran 70 mm inside a deck edge, and the edge,
+    as strong, passed through the corner the face's pose pins; the edges' pose was 73 mm off and refused."""
+    from agf.vision.pitch import PitchConfig, _line, _line_through
+
+    config = PitchConfig()
+    points, corner, panorama, lon = deck_lines_seen([0.07], np.random.default_rng(seed))
+    weights = np.r_[np.ones(300), np.full(300, 1.3)]
+    strongest = _line(panorama, points, weights, lon, config)
+    assert abs(corner @ strongest.normal) / panorama.pixel_size() > 20  # the inner line wins on strength
+    through = _line_through(corner, panorama, points, weights, strongest, lon, config)
+    assert abs(corner @ through.normal) / panorama.pixel_size() < 0.5
+    assert through.inliers[:300].mean() > 0.9 and through.inliers[300:].mean() < 0.01
+    # The edge through the corner is not searched for when the strongest line is already there ...
+    edge_only, corner, panorama, lon = deck_lines_seen([], np.random.default_rng(seed))
+    found = _line(panorama, edge_only, np.ones(len(edge_only)), lon, config)
+    assert _line_through(corner, panorama, edge_only, np.ones(len(edge_only)), found, lon, config) is None
+    # ... and nothing is taken where no line passes through the corner
+    inner_only = points[300:]
+    inner = _line(panorama, inner_only, np.ones(len(inner_only)), lon, config)
+    assert _line_through(corner, panorama, inner_only, np.ones(len(inner_only)), inner, lon, config) is None
