@@ -54,7 +54,8 @@ class PitchConfig:
     # same direction, hence the same pitch; only where the edge lies stays in doubt
     anchor_tolerance: float = 5.0  # panorama pixels: an edge this close to the point the pose pins ...
     anchor_gap: float = 3.0  # ... beats a rival that misses that point by this many pixels more
-    anchor_lines: int = 2  # lines after the strongest searched for one through that point (_line_through)
+    anchor_lines: int = 2  # lines after the strongest searched for one through that point (_line_through) ...
+    pinned_strength: float = 0.8  # ... at least this strong against it
     # The lines on the load's face (carton joints, tape, label sides) are parallel to its edges: their
     # common direction gives the loaded pitch from many lines, not from two (see load_face_direction).
     face_inset: float = 4.0  # panorama pixels inside the load edges: a silhouette's gradient maximum
@@ -711,7 +712,8 @@ class _Edge(NamedTuple):
     """One edge of a pair (:func:`_edge`): its line (the fit along the reach where there was one), a rival line
     beside it that the anchor does not rule out, its tilt (:func:`tilt_sigma`), its support ratio, the median
     highlight beside its points (:func:`edge_highlights`), and whether the anchor ``pinned`` the line among others
-    (:func:`_line_through`; the strongest line is then the rival, which the pitch must agree with)."""
+    (:func:`_line_through`, or a rival through the anchor; the stronger line is then the rival, which the pitch must
+    agree with)."""
 
     line: SphereLine | None
     rival: SphereLine | None
@@ -743,7 +745,7 @@ def _edge(search: _Search, segment: Array, far: Array, region: Array, reach_regi
     if rival is not None and _anchor_decides(line, rival, anchor, panorama, config):
         rival = None
     elif rival is not None and _anchor_decides(rival, line, anchor, panorama, config):
-        line, rival = _refit(rival, fitted, ones, panorama, config), None
+        line, rival, pinned = _refit(rival, fitted, ones, panorama, config), line, True
     elif rival is None and anchor is not None:
         through = _line_through(anchor, panorama, fitted, ones, line, lon, config)
         if through is not None:
@@ -915,13 +917,15 @@ def _line_through(
     lon: tuple[float, float], config: PitchConfig,
 ) -> SphereLine | None:
     """Where the strongest ``line`` misses the point the pose pins (``anchor``) by more than
-    ``anchor_tolerance``: a line among the other edge points that passes through it, at least half as strong,
-    else None.
+    ``anchor_tolerance``: a line among the other edge points that passes through it, at least ``pinned_strength``
+    as strong, else None.
 
     A deck seen from above shows lines parallel to its edges inside them (a board's joint, the lit and shaded
     sides of a chamfer): campaign seed 7, picks 28 and 120, verifying: one deck edge's strongest line ran 40 px
     (70 mm) inside the edge, the edge itself scored 0.87-1.0 of it and passed 0.3 px from the corner the face's
-    pose put within 2 mm; the pair placed the pallet 65 mm high and was refused.
+    pose put within 2 mm; the pair placed the pallet 65 mm high and was refused. At half as strong, a line through
+    the corner 22 px from a stronger one (0.6 of it) agreed with it on a pitch 1.6 deg off: both were shadows'
+    edges (picks 751 and 691 of that campaign were accepted 1.55 and 0.62 deg off).
     """
     pixel = panorama.pixel_size()
     if abs(anchor @ line.normal) / pixel <= config.anchor_tolerance:
@@ -929,7 +933,7 @@ def _line_through(
     rest = ~line.inliers
     for _ in range(config.anchor_lines):
         other = _line(panorama, directions[rest], weights[rest], lon, config)
-        if other is None or other.score < 0.5 * line.score:
+        if other is None or other.score < config.pinned_strength * line.score:
             return None
         if abs(anchor @ other.normal) / pixel <= config.anchor_tolerance:
             return _refit(other, directions, weights, panorama, config)

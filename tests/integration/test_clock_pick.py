@@ -251,6 +251,16 @@ def test_regression_campaign_pick_386_of_seed_7_ends_refused_not_in_the_pallet()
 OPEN_CAMPAIGN_WRONG_ACCEPTS = (55, 139, 386)
 
 
+@pytest.mark.parametrize("index", (394, 691, 751, 850))
+def test_regression_campaign_picks_of_seed_7_a_deck_line_through_the_corner_keeps_the_pitch_check(index):
+    """With the deck edges pinned by their front corners (session 30), these picks accepted unloaded pitches
+    0.17-1.55 deg off: a line through the corner at half the strength of a stronger one beside it, both shadows'
+    edges agreeing on the wrong pitch (751, 691), and a stronger line dropped without a pitch check where its rival
+    passed through the corner (394, 850). A pinned line is now 0.8 as strong at least, and the stronger one always
+    stays a rival that the pitch must agree with."""
+    assert_no_measurement_outside_bounds(7, index)
+
+
 def test_regression_campaign_pick_159_of_seed_7_accepts_no_measurement_outside_bounds():
     """Pick 159's second measurement (verifying, unloaded) was accepted 0.1004 deg off in pitch; since the deck
     edge through the deck's front corner beats a stronger line beside it (agf/vision/pitch.py), 0.083 deg."""

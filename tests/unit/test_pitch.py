@@ -280,7 +280,7 @@ def test_regression_a_deck_line_inside_the_edge_gives_way_to_the_edge_through_th
 
     config = PitchConfig()
     points, corner, panorama, lon = deck_lines_seen([0.07], np.random.default_rng(seed))
-    weights = np.r_[np.ones(300), np.full(300, 1.3)]
+    weights = np.r_[np.ones(300), np.full(300, 1.2)]
     strongest = _line(panorama, points, weights, lon, config)
     assert abs(corner @ strongest.normal) / panorama.pixel_size() > 20  # the inner line wins on strength
     through = _line_through(corner, panorama, points, weights, strongest, lon, config)
