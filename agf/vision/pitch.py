@@ -927,17 +927,16 @@ def _line_through(
     the corner 22 px from a stronger one (0.6 of it) agreed with it on a pitch 1.6 deg off: both were shadows'
     edges (picks 751 and 691 of that campaign were accepted 1.55 and 0.62 deg off).
     """
-    pixel = panorama.pixel_size()
-    if abs(anchor @ line.normal) / pixel <= config.anchor_tolerance:
+    if _anchor_miss(anchor, line, panorama) <= config.anchor_tolerance:
         return None
     rest = ~line.inliers
     for _ in range(config.anchor_lines):
         other = _line(panorama, directions[rest], weights[rest], lon, config)
         if other is None or other.score < config.pinned_strength * line.score:
             return None
-        if abs(anchor @ other.normal) / pixel <= config.anchor_tolerance:
+        if _anchor_miss(anchor, other, panorama) <= config.anchor_tolerance:
             return _refit(other, directions, weights, panorama, config)
-        rest &= np.abs(directions @ other.normal) >= config.inlier_tolerance * pixel
+        rest &= np.abs(directions @ other.normal) >= config.inlier_tolerance * panorama.pixel_size()
     return None
 
 
@@ -958,9 +957,13 @@ def _anchor_decides(
     """
     if anchor is None:
         return False
-    pixel = panorama.pixel_size()
-    miss_line, miss_rival = abs(anchor @ line.normal) / pixel, abs(anchor @ rival.normal) / pixel
+    miss_line, miss_rival = _anchor_miss(anchor, line, panorama), _anchor_miss(anchor, rival, panorama)
     return miss_line <= config.anchor_tolerance and miss_rival - miss_line >= config.anchor_gap
+
+
+def _anchor_miss(anchor: Array, line: SphereLine, panorama: Panorama) -> float:
+    """How far (panorama pixels) ``line`` passes from the unit direction ``anchor``."""
+    return abs(float(anchor @ line.normal)) / panorama.pixel_size()
 
 
 def _pitch_from_direction(direction_f: Array, pallet_in_fork: Transform, axis_index: int) -> float:

@@ -382,4 +382,3 @@ def test_regression_campaign_pick_28_of_seed_7_verifying_a_deck_line_inside_the_
     scene, measurement = measure_random_look("campaign-frames/campaign-7-pick-28-verifying")
     assert within_bounds(errors(scene, measurement)), errors(scene, measurement)
     assert not measurement.loaded
-

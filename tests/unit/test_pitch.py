@@ -15,7 +15,11 @@ from agf.paths import DEFAULT_CONFIG
 from agf.vision.hough import SphereLine, fit_plane_normal
 from agf.vision.pitch import (
     HIGHLIGHT_REACH,
+    PitchConfig,
     PitchEvidence,
+    _line,
+    _line_through,
+    _panorama_over,
     deck_corner_misses,
     direction_of_parallel_lines,
     edge_highlights,
@@ -258,8 +262,6 @@ def deck_lines_seen(insides: list[float], rng: np.random.Generator):
     """Edge points (unit directions, camera frame) on the right deck edge of a level pallet 0.3 m ahead of the forks
     and on lines parallel to it ``insides`` (m) inside it, 0.2 mm of noise; the deck's front corner; the panorama
     the edges are searched in and its longitude range."""
-    from agf.vision.pitch import PitchConfig, _panorama_over
-
     in_camera = CAMERA_IN_FORK.inverse() @ Transform.from_euler(0.3, 0.0, 0.0)
     x = np.linspace(0.03, PALLET.length - 0.03, 300)
     lines = [np.c_[x, np.full_like(x, PALLET.width / 2 - inside), np.full_like(x, PALLET.deck_top)]
@@ -276,8 +278,6 @@ def deck_lines_seen(insides: list[float], rng: np.random.Generator):
 def test_regression_a_deck_line_inside_the_edge_gives_way_to_the_edge_through_the_corner(seed):
     """Campaign seed 7, picks 28 and 120, verifying: the strongest line ran 70 mm inside a deck edge, and the edge,
     as strong, passed through the corner the face's pose pins; the edges' pose was 73 mm off and refused."""
-    from agf.vision.pitch import PitchConfig, _line, _line_through
-
     config = PitchConfig()
     points, corner, panorama, lon = deck_lines_seen([0.07], np.random.default_rng(seed))
     weights = np.r_[np.ones(300), np.full(300, 1.2)]
