@@ -17,6 +17,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -61,6 +62,10 @@ class PitchConfig:
     face_inset: float = 4.0  # panorama pixels inside the load edges: a silhouette's gradient maximum
     # moves with the contrast against the background (wall above, floor below) and leaned the pitch 0.2 deg
     face_scan: float = math.radians(1.5)  # pitches searched either side of the pose's
+    # ... and, where no face direction lies within face_scan but the load's edges agree on a pitch, this far: a face
+    # leaning further is a contradiction, not silence (campaign seed 7 pick 206: a loaded pallet pitched 3.6 deg, its
+    # edges found on lines at 0.72 deg, accepted there; its face's lines lay beyond 0.72 +- 1.5 deg)
+    face_scan_wide: float = math.radians(5.0)
     face_step: float = math.radians(0.02)
     face_min_points: int = 25  # edge points (panorama rows) for a line on the face to count ...
     face_min_lines: int = 3  # ... and lines for the face's direction to count
@@ -306,9 +311,10 @@ def loaded_evidence(
     if not pair.candidates:
         return pair
     face = load_face_direction(pair, camera, camera_in_fork, pallet, pallet_in_fork, config)
+    if face is None and pair.valid:
+        return _checked_by_wide_face(pair, camera, camera_in_fork, pallet, pallet_in_fork, config)
     if face is None:
-        return pair if pair.valid else _confirmed_by_load_top(pair, None, gray, camera, camera_in_fork, pallet,
-                                                              pallet_in_fork, config, colour)
+        return _confirmed_by_load_top(pair, None, gray, camera, camera_in_fork, pallet, pallet_in_fork, config, colour)
     nearest = min(pair.candidates, key=lambda c: abs(c - face.pitch))
     miss = abs(nearest - face.pitch)
     alone = face.sigma <= config.face_alone_tight or (
@@ -316,17 +322,14 @@ def loaded_evidence(
     )
     note = ""
     if miss > config.face_agreement and not alone:
-        note = (f"the load's edges give a pitch of {', '.join(f'{math.degrees(c):.2f}' for c in pair.candidates)} deg, "
-                f"the {face.lines} lines on its face {math.degrees(face.pitch):.2f} deg")
+        note = _edges_against_face(pair.candidates, face)
     elif face.sigma > config.face_max_sigma:
         note = (f"the {face.lines} lines on the load's face give its pitch only to +-{math.degrees(face.sigma):.2f} "
                 f"deg (at most {math.degrees(config.face_max_sigma):.3f})")
     if note:
         lead = face.pitch if miss > config.face_agreement and face.sigma <= config.face_max_sigma else math.nan
-        refused = dataclasses.replace(pair, valid=False, pitch=math.nan, direction=np.full(3, np.nan),
-                                      ambiguous=False, note=note, lead=lead)
-        return _confirmed_by_load_top(refused, face, gray, camera, camera_in_fork, pallet, pallet_in_fork, config,
-                                      colour)
+        return _confirmed_by_load_top(_refused(pair, note, lead), face, gray, camera, camera_in_fork, pallet,
+                                      pallet_in_fork, config, colour)
     if alone or miss > config.face_agreement:
         sigma = face.sigma if miss > config.face_agreement else math.hypot(face.sigma, miss / 2)
         return dataclasses.replace(pair, valid=True, pitch=face.pitch, direction=face.direction, ambiguous=False,
@@ -336,6 +339,38 @@ def loaded_evidence(
     # pose of 36 random looks the face was up to 0.13 deg off where the two agreed, their mean at most 0.08.
     return _loaded_at(pair, (face.pitch + nearest) / 2, math.hypot(face.sigma, miss / 2), camera_in_fork,
                       pallet_in_fork)
+
+
+def _edges_against_face(candidates: Sequence[float], face: FaceDirection) -> str:
+    """Why the load's edges (their candidate pitches, rad) and the lines on its face disagree."""
+    return (f"the load's edges give a pitch of {', '.join(f'{math.degrees(c):.2f}' for c in candidates)} deg, "
+            f"the {face.lines} lines on its face {math.degrees(face.pitch):.2f} deg")
+
+
+def _refused(evidence: PitchEvidence, note: str, lead: float = math.nan) -> PitchEvidence:
+    """``evidence`` made invalid for ``note``, with the pitch (rad) the face leads to, if any."""
+    return dataclasses.replace(evidence, valid=False, pitch=math.nan, direction=np.full(3, np.nan), ambiguous=False,
+                               note=note, lead=lead)
+
+
+def _checked_by_wide_face(
+    pair: PitchEvidence,
+    camera: CameraModel,
+    camera_in_fork: Transform,
+    pallet: PalletType,
+    pallet_in_fork: Transform,
+    config: PitchConfig,
+) -> PitchEvidence:
+    """A valid pair of load edges whose face showed no direction within :attr:`PitchConfig.face_scan` of the pose's
+    pitch, refused where the face's lines, scanned :attr:`PitchConfig.face_scan_wide` either side, lean further than
+    :attr:`PitchConfig.face_agreement` from the edges' pitch (led to the face's pitch when it is sure enough, as any
+    face the edges disagree with); else ``pair`` as it is. A face found only so far away never gives the pitch
+    itself: among more pitches, lines of another direction (rack uprights, a neighbour's load) bunch more easily."""
+    wide = load_face_direction(pair, camera, camera_in_fork, pallet, pallet_in_fork, config, scan=config.face_scan_wide)
+    if wide is None or abs(wide.pitch - pair.pitch) <= config.face_agreement:
+        return pair
+    return _refused(pair, _edges_against_face(pair.candidates, wide),
+                    wide.pitch if wide.sigma <= config.face_max_sigma else math.nan)
 
 
 def _loaded_at(
@@ -440,6 +475,8 @@ def load_face_direction(
     pallet: PalletType,
     pallet_in_fork: Transform,
     config: PitchConfig = PitchConfig(),
+    *,
+    scan: float | None = None,
 ) -> FaceDirection | None:
     """The direction shared by the lines between the load's two edges (carton joints, tape, labels).
 
@@ -447,7 +484,7 @@ def load_face_direction(
     points at the vanishing point of its edges. Many lines across the face fix it where two edges,
     each fitted alone, follow a joint of an offset carton row or a stretch of background beside a
     weak silhouette (random looks: 2 of 18 loaded scenes measured within bounds from the two edges,
-    15 from the face's lines, at the true pose). Pitches within :attr:`PitchConfig.face_scan` of the
+    15 from the face's lines, at the true pose). Pitches within ``scan`` of the
     pose's are scored by how sharply the edge points' longitudes around the candidate direction bunch
     into lines; at the best one the lines are fitted and their direction is solved for by weighted
     least squares, dropping lines that disagree.
@@ -458,6 +495,8 @@ def load_face_direction(
         A loaded hypothesis whose two edges were found, with its ``face_points``.
     camera, camera_in_fork, pallet, pallet_in_fork
         Camera, calibration, pallet type and the pose the edges were searched from.
+    scan : float, optional
+        Pitches searched either side of the pose's (rad); :attr:`PitchConfig.face_scan` by default.
 
     Returns
     -------
@@ -472,7 +511,8 @@ def load_face_direction(
     if len(points) < config.face_min_points * config.face_min_lines:
         return None
     yaw, pitch0, roll = pallet_in_fork.euler
-    pitches = pitch0 + np.arange(-config.face_scan, config.face_scan + config.face_step / 2, config.face_step)
+    scan = config.face_scan if scan is None else scan
+    pitches = pitch0 + np.arange(-scan, scan + config.face_step / 2, config.face_step)
     to_camera = camera_in_fork.inverse().rotation
     axes = np.array([to_camera @ Transform.from_euler(0.0, 0.0, 0.0, roll, p, yaw).rotation[:, 2] for p in pitches])
     found = direction_of_parallel_lines(points, axes, pixel, config)

@@ -382,3 +382,12 @@ def test_regression_campaign_pick_28_of_seed_7_verifying_a_deck_line_inside_the_
     scene, measurement = measure_random_look("campaign-frames/campaign-7-pick-28-verifying")
     assert within_bounds(errors(scene, measurement)), errors(scene, measurement)
     assert not measurement.loaded
+
+
+def test_regression_campaign_pick_206_of_seed_7_load_edges_are_not_accepted_against_a_face_leaning_further():
+    """A loaded pallet pitched 3.6 deg whose load edges were found on lines at 0.72 deg, the face's lines showing no
+    direction within 1.5 deg of that: the edges alone were accepted 2.88 deg off. The face, scanned further, leads
+    the search to its own pitch."""
+    scene, measurement = measure_random_look("campaign-frames/campaign-7-pick-206-level-view")
+    assert within_bounds(errors(scene, measurement)), errors(scene, measurement)
+    assert measurement.loaded
