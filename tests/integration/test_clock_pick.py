@@ -248,7 +248,16 @@ def test_regression_campaign_pick_386_of_seed_7_ends_refused_not_in_the_pallet()
 # test_regression_campaign_pick_38_of_seed_7_an_overexposed_deck_gives_no_pitch. Pick 159 left the list in session 30
 # with the deck edges pinned by their front corners (its verifying frame 0.083 deg off; kept as a regression test,
 # though its margin is small): test_regression_campaign_pick_159_of_seed_7_accepts_no_measurement_outside_bounds.
-OPEN_CAMPAIGN_WRONG_ACCEPTS = (55, 139, 386)
+# Session 31: every pick of the 1000-pick campaign (`agf simulate --random 1000 --seed 7`, on 3ca4536) that accepted a
+# measurement outside the bounds joined the list, 28 in all: the pitch 0.10-0.34 deg off in 25 (the deck or load edges
+# through the right corners with a stated sigma of 0.03-0.05 deg: the tails of the pitch's scatter, no rule broken),
+# z 5.0-5.1 mm off in 2 (pick 762), pick 386 (above). Pick 206 (a loaded pallet accepted 2.88 deg off from its load
+# edges alone) was fixed that session, test_regression_campaign_pick_206_of_seed_7_... in test_measure.py; pick 554's
+# verifying frame, refused before, was accepted 0.104 deg off after that fix.
+OPEN_CAMPAIGN_WRONG_ACCEPTS = (
+    8, 55, 122, 139, 221, 336, 386, 413, 474, 480, 488, 554, 580, 632, 660, 674, 707, 723, 729, 735, 762, 791, 808, 858,
+    930, 948, 986, 993,
+)
 
 
 @pytest.mark.parametrize("index", (394, 691, 751, 850))
@@ -291,7 +300,9 @@ def test_regression_campaign_picks_of_seed_7_beside_clipped_light_accept_no_meas
     assert_no_measurement_outside_bounds(7, index)
 
 
-@pytest.mark.xfail(strict=True, reason="accepted a measurement outside the bounds: open, see issue 17")
+@pytest.mark.xfail(
+    strict=True, raises=AssertionError, reason="accepted a measurement outside the bounds: open, see issue 17"
+)
 @pytest.mark.parametrize("index", OPEN_CAMPAIGN_WRONG_ACCEPTS)
 def test_open_campaign_wrong_accepts_of_seed_7(index):
     assert_no_measurement_outside_bounds(7, index)
