@@ -315,7 +315,8 @@ def loaded_evidence(
         checked = _checked_by_wide_face(pair, camera, camera_in_fork, pallet, pallet_in_fork, config)
         if not checked.valid:
             return checked
-        return _checked_by_load_top(checked, gray, camera, camera_in_fork, pallet, pallet_in_fork, config, colour)
+        top = load_top_evidence(gray, camera, camera_in_fork, pallet, pallet_in_fork, config, colour=colour)
+        return _checked_by_load_top(checked, top, config)
     if face is None:
         return _confirmed_by_load_top(pair, None, gray, camera, camera_in_fork, pallet, pallet_in_fork, config, colour)
     nearest = min(pair.candidates, key=lambda c: abs(c - face.pitch))
@@ -376,23 +377,13 @@ def _checked_by_wide_face(
                     wide.pitch if wide.sigma <= config.face_max_sigma else math.nan)
 
 
-def _checked_by_load_top(
-    pair: PitchEvidence,
-    gray: NDArray,
-    camera: CameraModel,
-    camera_in_fork: Transform,
-    pallet: PalletType,
-    pallet_in_fork: Transform,
-    config: PitchConfig,
-    colour: NDArray[np.uint8] | None,
-) -> PitchEvidence:
-    """A valid pair of load edges that no line on the load's face confirmed, refused where the load's top face
+def _checked_by_load_top(pair: PitchEvidence, top: PitchEvidence | None, config: PitchConfig) -> PitchEvidence:
+    """A valid pair of load edges that no line on the load's face confirmed, refused where the load's ``top`` face
     (:func:`load_top_evidence`, fitted to :attr:`PitchConfig.top_max_sigma`) gives a pitch more than
     :attr:`PitchConfig.face_agreement` from theirs; else ``pair`` as it is. Two edges alone follow a rival line as
     easily as the load's outline: a loaded pallet pitched 3.32 deg, seen from 150 mm below campaign seed 7 pick 29's
     start, was accepted 0.15 deg off from its edges alone, its top face at 3.26 deg (its face's lines, 5-6 of them,
     found at some poses and not at others)."""
-    top = load_top_evidence(gray, camera, camera_in_fork, pallet, pallet_in_fork, config, colour=colour)
     if top is None or not top.valid or top.sigma > config.top_max_sigma:
         return pair
     if abs(top.pitch - pair.pitch) <= config.face_agreement:
