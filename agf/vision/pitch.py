@@ -209,7 +209,7 @@ def unloaded_evidence(
                 "clipped highlights move the edges' lines; lower the camera's exposure")
     else:
         return pair
-    return dataclasses.replace(pair, valid=False, pitch=math.nan, direction=np.full(3, np.nan), note=note)
+    return _refused(pair, note)
 
 
 def pose_from_deck_edges(
@@ -310,9 +310,10 @@ def loaded_evidence(
     )
     if not pair.candidates:
         return pair
-    face = load_face_direction(pair, camera, camera_in_fork, pallet, pallet_in_fork, config)
+    points = _face_points(pair, camera, camera_in_fork, pallet, pallet_in_fork, config)
+    face = load_face_direction(pair, camera, camera_in_fork, pallet, pallet_in_fork, config, points=points)
     if face is None and pair.valid:
-        checked = _checked_by_wide_face(pair, camera, camera_in_fork, pallet, pallet_in_fork, config)
+        checked = _checked_by_wide_face(pair, points, camera, camera_in_fork, pallet, pallet_in_fork, config)
         if not checked.valid:
             return checked
         top = load_top_evidence(gray, camera, camera_in_fork, pallet, pallet_in_fork, config, colour=colour)
@@ -359,6 +360,7 @@ def _refused(evidence: PitchEvidence, note: str, lead: float = math.nan) -> Pitc
 
 def _checked_by_wide_face(
     pair: PitchEvidence,
+    points: Array,
     camera: CameraModel,
     camera_in_fork: Transform,
     pallet: PalletType,
@@ -369,8 +371,10 @@ def _checked_by_wide_face(
     pitch, refused where the face's lines, scanned :attr:`PitchConfig.face_scan_wide` either side, lean further than
     :attr:`PitchConfig.face_agreement` from the edges' pitch (led to the face's pitch when it is sure enough, as any
     face the edges disagree with); else ``pair`` as it is. A face found only so far away never gives the pitch
-    itself: among more pitches, lines of another direction (rack uprights, a neighbour's load) bunch more easily."""
-    wide = load_face_direction(pair, camera, camera_in_fork, pallet, pallet_in_fork, config, scan=config.face_scan_wide)
+    itself: among more pitches, lines of another direction (rack uprights, a neighbour's load) bunch more easily.
+    ``points``: the face's points (:func:`_face_points`), as the narrow scan had them."""
+    wide = load_face_direction(pair, camera, camera_in_fork, pallet, pallet_in_fork, config, scan=config.face_scan_wide,
+                               points=points)
     if wide is None or abs(wide.pitch - pair.pitch) <= config.face_agreement:
         return pair
     return _refused(pair, _edges_against_face(pair.candidates, wide),
@@ -496,6 +500,7 @@ def load_face_direction(
     config: PitchConfig = PitchConfig(),
     *,
     scan: float | None = None,
+    points: Array | None = None,
 ) -> FaceDirection | None:
     """The direction shared by the lines between the load's two edges (carton joints, tape, labels).
 
@@ -516,6 +521,9 @@ def load_face_direction(
         Camera, calibration, pallet type and the pose the edges were searched from.
     scan : float, optional
         Pitches searched either side of the pose's (rad); :attr:`PitchConfig.face_scan` by default.
+    points : (N, 3) array, optional
+        The face's points where the caller has them already (a second scan of the same evidence); they
+        depend on the evidence and the pose, not on the scan.
 
     Returns
     -------
@@ -526,7 +534,8 @@ def load_face_direction(
     if evidence.face_points is None or len(evidence.lines) != 2:
         raise ValueError("the face's direction needs a loaded hypothesis with both edges found and its face points")
     pixel = evidence.panorama.pixel_size()
-    points = _face_points(evidence, camera, camera_in_fork, pallet, pallet_in_fork, config)
+    if points is None:
+        points = _face_points(evidence, camera, camera_in_fork, pallet, pallet_in_fork, config)
     if len(points) < config.face_min_points * config.face_min_lines:
         return None
     yaw, pitch0, roll = pallet_in_fork.euler
