@@ -153,13 +153,14 @@ class CameraModel(ABC):
     def _shifted_directions(self, points: Array) -> Array:
         """Directions from each point's own shifted pupil: solve theta = atan2(rho, x - s(theta))."""
         rho = np.hypot(points[:, 1], points[:, 2])
+        rho2 = rho**2  # out of the loop: the solve runs 1,100 times over the bench's 34 frames
         x = points[:, 0]
         theta = np.arctan2(rho, x)
         for _ in range(30):
             s, ds = self.shift.offset_and_derivative(theta)
             dx = x - s
             f = theta - np.arctan2(rho, dx)
-            df = 1.0 - rho * ds / (rho**2 + dx**2)
+            df = 1.0 - rho * ds / (rho2 + dx**2)
             step = f / df
             theta = theta - step
             if np.all(np.abs(step) < 1e-10):  # 1e-10 rad is below 1e-7 px on any lens here

@@ -84,15 +84,15 @@ class OCamCalib(CameraModel):
         dpol = P.polyder(self.pol)
         # Rays far outside the field of view make Newton diverge; they are flagged invalid below.
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            r = P.polyval(elevation, self.invpol)
+            r = _polyval(elevation, self.invpol)
             for _ in range(8):
-                z = P.polyval(r, self.pol)
+                z = _polyval(r, self.pol)
                 g = np.arctan2(z, r) - elevation
                 if not np.any(np.abs(g) > 1e-13):  # converged (NaN rays, outside the model, stay invalid)
                     break
-                dg = (P.polyval(r, dpol) * r - z) / (r**2 + z**2)
+                dg = (_polyval(r, dpol) * r - z) / (r**2 + z**2)
                 r = r - g / dg
-            ok = np.isfinite(r) & (r >= 0) & (np.abs(np.arctan2(P.polyval(r, self.pol), r) - elevation) < 1e-9)
+            ok = np.isfinite(r) & (r >= 0) & (np.abs(np.arctan2(_polyval(r, self.pol), r) - elevation) < 1e-9)
         return r, ok
 
     def invpol_error_px(self, samples: int = 512) -> float:
@@ -101,6 +101,18 @@ class OCamCalib(CameraModel):
         elevation = incidence - math.pi / 2
         exact, ok = self.radius_from_elevation(elevation)
         return float(np.max(np.abs(P.polyval(elevation, self.invpol) - exact)[ok]))
+
+
+def _polyval(x: Array, coefficients: Array) -> Array:
+    """``numpy.polynomial.polynomial.polyval(x, coefficients)`` for an (N,) ``x``, with its arithmetic (Horner
+    from ``coefficients[-1] + 0 x``) in place: numpy's allocates every step, and the projection's Newton solve
+    evaluates 14,000 polynomials over the bench's 34 frames (0.45 s of 18 profiled)."""
+    value = x * 0.0
+    value += coefficients[-1]
+    for coefficient in coefficients[-2::-1]:
+        value *= x
+        value += coefficient
+    return value
 
 
 def default_max_incidence(pol: Array, width: int, height: int, center_row: float, center_col: float) -> float:

@@ -65,13 +65,20 @@ def search_edges(
         return EdgeSearch(np.zeros(0), np.zeros(0), np.zeros(0, bool))
     reach = np.broadcast_to(np.asarray(radius, dtype=np.float64), (len(starts),))
     t = np.arange(-reach.max(initial=0.0), reach.max(initial=0.0) + step / 2, step, dtype=np.float64)
-    u = (starts[:, 0:1] + normals[:, 0:1] * t).astype(np.float32)
-    v = (starts[:, 1:2] + normals[:, 1:2] * t).astype(np.float32)
+    # u and v through one float64 buffer: the face-edge check's searches reach 20,000 profiles of 41 samples, where
+    # a fresh 6 MB temporary per coordinate took 3.8 ms instead of 3.0
+    along = normals[:, 0:1] * t
+    along += starts[:, 0:1]
+    u = along.astype(np.float32)
+    np.multiply(normals[:, 1:2], t, out=along)
+    along += starts[:, 1:2]
+    v = along.astype(np.float32)
     profile = _sample(image, u, v)
     slope = _falling_slope(profile, step)
     if either_polarity:
         # the channels one at a time: numpy reduces a short last axis slowly (half the search's time in colour)
-        slope = np.abs(slope) if slope.ndim == 2 else functools.reduce(np.maximum, np.abs(np.moveaxis(slope, 2, 0)))
+        np.abs(slope, out=slope)
+        slope = slope if slope.ndim == 2 else functools.reduce(np.maximum, np.moveaxis(slope, 2, 0))
     slope = slope.astype(np.float64)
     rows, index = np.arange(len(starts)), np.arange(len(t))
     first = np.searchsorted(t, -reach - 1e-9)  # each point's range of samples
@@ -101,11 +108,13 @@ _REMAP_ROWS = 32766  # cv2.remap's maps must have fewer than SHRT_MAX (32767) ro
 def _sample(image: NDArray[np.float32], u: NDArray[np.float32], v: NDArray[np.float32]) -> NDArray[np.float32]:
     """``image`` sampled bilinearly at (``u``, ``v``) (N, T), in blocks of rows that ``cv2.remap`` takes: the
     face-edge check of a 2 m wide face with its rival poses reaches 40,000 profiles."""
-    return np.concatenate([
+    blocks = [
         cv2.remap(image, u[k : k + _REMAP_ROWS], v[k : k + _REMAP_ROWS], cv2.INTER_LINEAR,
                   borderMode=cv2.BORDER_REPLICATE)
         for k in range(0, len(u), _REMAP_ROWS)
-    ])
+    ]
+    # one block needs no copy: concatenating it took half the sampling's 6.7 ms on a 20,000-profile colour search
+    return blocks[0] if len(blocks) == 1 else np.concatenate(blocks)
 
 
 def _falling_slope(profile: NDArray[np.float32], step: float) -> NDArray[np.float32]:

@@ -70,17 +70,24 @@ def hough_line(
     taus = np.arange(-tau_max, tau_max + tau_step / 2, tau_step)
     # The circle of inclination tau through (lon, lat) crosses the equator at lon - atan(tan(s) sin(tau)),
     # s being the arc from the equator: sin(lat) = sin(s) cos(tau).
-    sin_lat = np.sin(lat)[None, :]
-    cos_tau = np.cos(taus)[:, None]
-    tan_s = sin_lat / np.sqrt(np.maximum(cos_tau**2 - sin_lat**2, 1e-12))
-    phis = lon[None, :] - np.arctan(tan_s * np.sin(taus)[:, None])
+    # The (taus, N) steps in place, in one buffer: the pitch search calls this 1,400 times over the bench's 34
+    # frames, and the temporaries cost a fifth of its time.
+    sin_lat = np.sin(lat)
+    phis = np.cos(taus)[:, None] ** 2 - sin_lat[None, :] ** 2
+    np.sqrt(np.maximum(phis, 1e-12, out=phis), out=phis)
+    np.divide(sin_lat[None, :], phis, out=phis)  # tan(s)
+    phis *= np.sin(taus)[:, None]
+    np.subtract(lon[None, :], np.arctan(phis, out=phis), out=phis)
     bin_width = panorama.pixel_size()
     edges = np.arange(phi_range[0], phi_range[1] + bin_width, bin_width)
     if edges.size < 2:
         return None
-    bins = np.floor((phis - edges[0]) / bin_width).astype(np.int64)
+    phis -= edges[0]
+    phis /= bin_width
+    bins = np.floor(phis, out=phis).astype(np.int64)
     inside = (bins >= 0) & (bins < edges.size - 1)
-    cells = (np.arange(len(taus))[:, None] * (edges.size - 1) + bins)[inside]
+    bins += np.arange(len(taus))[:, None] * (edges.size - 1)
+    cells = bins[inside]
     votes = np.broadcast_to(weights[None, :], phis.shape)[inside]
     raw = np.bincount(cells, weights=votes, minlength=len(taus) * (edges.size - 1)).reshape(len(taus), -1)
     summed = raw.copy()  # each bin with its two neighbours: a line's votes straddle bin borders
