@@ -100,9 +100,14 @@ def clearance(tines: TineSurface, fork_in_pallet: Transform, parts: Array) -> fl
 
 def signed_distances(points: Array, parts: Array) -> Array:
     """Signed distance (N,) from each point (N, 3, frame P) to the union of the parts (K, 2, 3): the
-    distance to the nearest part outside them, minus the depth to the nearest side inside one."""
-    points = points.T[:, None, :]  # (3, 1, N): the long axis innermost, for speed
-    below, above = parts[:, 0].T[:, :, None] - points, points - parts[:, 1].T[:, :, None]  # (3, K, N)
-    outside = np.maximum(np.maximum(below, above), 0.0)
-    depth = -np.maximum(below, above).max(axis=0)  # > 0 inside the part: the distance to its nearest side
-    return np.where(depth > 0, -depth, np.sqrt((outside * outside).sum(axis=0))).min(axis=0)
+    distance to the nearest part outside them, minus the depth to the nearest side inside one.
+
+    The points are copied axis-major first: on the (3, K, N) arrays of strided views each of the 128 points
+    of a chunk cost 0.6 us, contiguous 0.2 us (it runs for about 13 chunks every control cycle)."""
+    points = np.ascontiguousarray(points.T)[:, None, :]  # (3, 1, N): the long axis innermost and contiguous
+    low, high = np.ascontiguousarray(parts[:, 0].T)[:, :, None], np.ascontiguousarray(parts[:, 1].T)[:, :, None]
+    beyond = np.maximum(low - points, points - high)  # (3, K, N): how far outside each slab (< 0 inside it)
+    nearest_side = beyond.max(axis=0)  # < 0 inside the part: minus the distance to its nearest side
+    squared = np.square(np.maximum(beyond, 0.0, out=beyond), out=beyond)
+    distance = np.sqrt(squared[0] + squared[1] + squared[2])
+    return np.where(nearest_side < 0, nearest_side, distance).min(axis=0)
