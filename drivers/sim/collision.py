@@ -128,7 +128,7 @@ def signed_distances(points: Array, parts: Array) -> Array:
     distance to the nearest part outside them, minus the depth to the nearest side inside one.
 
     The points are copied axis-major first: on the (3, K, N) arrays of strided views each of the 128 points
-    of a chunk cost 0.6 us, contiguous 0.2 us (it runs for about 13 chunks every control cycle)."""
+    of a chunk cost 0.6 us, contiguous 0.2 us (it runs for every chunk :func:`clearance` measures)."""
     points = np.ascontiguousarray(points.T)[:, None, :]  # (3, 1, N): the long axis innermost and contiguous
     low, high = np.ascontiguousarray(parts[:, 0].T)[:, :, None], np.ascontiguousarray(parts[:, 1].T)[:, :, None]
     beyond = np.maximum(low - points, points - high)  # (3, K, N): how far outside each slab (< 0 inside it)
