@@ -45,7 +45,7 @@ from agf.axis import AxisFeedback
 from agf.config import Config, ForkGeometry, SearchVolume, load_calibration
 from agf.errors import ConfigError, InputError
 from agf.frames import Frame
-from agf.geometry import Transform, quaternion_from_matrix
+from agf.geometry import Transform
 from agf.measurement import PalletMeasurement
 
 # A chunk is closed at this size or at the next flush, whichever comes first; a frame (0.3-0.6 MB of
@@ -161,7 +161,7 @@ def _stamp(ns: int) -> dict[str, int]:
 def transform_message(ns: int, parent: str, child: str, child_in_parent: Transform) -> dict[str, Any]:
     """A ``foxglove.FrameTransform``: ``child``'s pose in ``parent``."""
     x, y, z = (float(v) for v in child_in_parent.translation)
-    qx, qy, qz, qw = (float(v) for v in quaternion_from_matrix(child_in_parent.rotation))
+    qx, qy, qz, qw = (float(v) for v in child_in_parent.quaternion)
     return {"timestamp": _stamp(ns), "parent_frame_id": parent, "child_frame_id": child,
             "translation": {"x": x, "y": y, "z": z}, "rotation": {"x": qx, "y": qy, "z": qz, "w": qw}}
 

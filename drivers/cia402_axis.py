@@ -21,10 +21,12 @@ from __future__ import annotations
 
 import collections
 import configparser
+import functools
 import io
 import logging
 import math
 import os
+import pickle
 import queue
 import re
 import threading
@@ -169,7 +171,7 @@ def load_object_dictionary(source: str | Path, node_id: int) -> canopen.ObjectDi
     if not path.is_file():
         raise ConfigError(f"EDS file {path} not found")
     try:
-        return canopen.import_od(str(path), node_id)
+        return pickle.loads(_imported_od(str(path), node_id, path.read_bytes()))
     except (configparser.Error, ObjectDictionaryError, KeyError, ValueError) as exc:
         logger.warning("%s: canopen refuses the EDS as it is (%s); importing it tolerantly", path, exc)
     parser = configparser.RawConfigParser()
@@ -187,6 +189,14 @@ def load_object_dictionary(source: str | Path, node_id: int) -> canopen.ObjectDi
         return canopen.import_od(text, node_id)
     except (configparser.Error, ObjectDictionaryError, KeyError, ValueError) as exc:
         raise ConfigError(f"EDS file {path}: cannot import object {exc}") from exc
+
+
+@functools.lru_cache(maxsize=32)
+def _imported_od(path: str, node_id: int, content: bytes) -> bytes:
+    """canopen's import of the EDS at ``path`` (whose bytes are ``content``, so an edited file is imported
+    anew), pickled: every node still gets a dictionary of its own, as from an import of its own. A simulated
+    pick imports the EDS six times (three axes, three drives): 7 ms each, 0.4 ms to unpickle."""
+    return pickle.dumps(canopen.import_od(path, node_id))
 
 
 def _repair_eds(parser: configparser.RawConfigParser, path: Path) -> None:
@@ -350,6 +360,8 @@ class ClockedNetwork(canopen.Network):
 
     def _settle(self) -> bool:
         """Wait until every frame this node received has been handled; whether none was pending."""
+        if self._queue.unfinished_tasks == 0:  # first without the lock: asked about 37 times a cycle, mostly idle
+            return True
         pending = self._queue.all_tasks_done
         with pending:
             if self._queue.unfinished_tasks == 0:

@@ -323,14 +323,23 @@ class SimDrive:
         return od.decode_raw(self.node.get_data(index, subindex))
 
     def _on_read(self, index: int, subindex: int, od: Any) -> int | None:
-        values = {
-            0x6041: self._statusword, 0x6061: lambda: self.mode, 0x6064: lambda: round(self.position),
-            0x606C: lambda: round(self.velocity), 0x603F: lambda: self.error_code,
-            0x1001: lambda: 0x81 if self.error_code else 0,  # generic + manufacturer-specific error
-            0x6502: lambda: od.default if od.default is not None else 0x81,  # PP and CSP
-        }
-        getter = values.get(index)
-        return getter() if getter is not None else None
+        # a chain of tests, not a table of getters built per call: it answers every object the drive reads
+        # (about 12 a SYNC: its TPDOs, limits and cycle period), and the table was most of its cost
+        if index == 0x6041:
+            return self._statusword()
+        if index == 0x6064:
+            return round(self.position)
+        if index == 0x606C:
+            return round(self.velocity)
+        if index == 0x6061:
+            return self.mode
+        if index == 0x603F:
+            return self.error_code
+        if index == 0x1001:
+            return 0x81 if self.error_code else 0  # generic + manufacturer-specific error
+        if index == 0x6502:
+            return od.default if od.default is not None else 0x81  # PP and CSP
+        return None
 
     def _on_write(self, index: int, subindex: int, od: Any, data: bytes) -> None:
         value = od.decode_raw(data) if od.data_type in canopen.objectdictionary.NUMBER_TYPES else None
@@ -462,8 +471,10 @@ class SimDrive:
         if seen is not None and timeout and now - seen > timeout:
             self._master_seen = None
             self._fault(MASTER_HEARTBEAT)
+        if self.state not in ("QUICK STOP ACTIVE", "FAULT REACTION ACTIVE"):
+            return  # reading the cycle period from the object dictionary was 85 % of this, 600 times a second
         cycle = self._cycle_period()
-        if self.state in ("QUICK STOP ACTIVE", "FAULT REACTION ACTIVE") and now - self._last_sync > 3 * cycle:
+        if now - self._last_sync > 3 * cycle:
             self.step(cycle)  # no SYNC any more: finish the stop ramp on our own clock
             self._last_sync = now - 2 * cycle
 
