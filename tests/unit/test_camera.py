@@ -12,9 +12,10 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from numpy.polynomial import polynomial
 
 from agf.camera import KannalaBrandt, OCamCalib, ViewpointShift, load_camera
-from agf.camera.ocamcalib import read_calib_results, write_calib_results
+from agf.camera.ocamcalib import _polyval, read_calib_results, write_calib_results
 from agf.errors import ConfigError
 from agf.paths import repo_path
 
@@ -304,3 +305,13 @@ def test_tabulated_viewpoint_shift_interpolates_with_its_derivative():
     assert np.allclose(shift.derivative(theta), numeric, atol=1e-7)
     beyond = angles[-1] + 0.2
     assert shift.offset(beyond) == pytest.approx(offsets[-1] + 0.2 * shift.derivative(angles[-1]))
+
+
+@pytest.mark.parametrize("degree", [0, 1, 4, 9])
+def test_ocamcalib_in_place_polyval_equals_numpys(degree):
+    # _polyval keeps numpy's Horner order so that the projection's bits did not change when it replaced polyval
+    rng = np.random.default_rng(degree)
+    x, coefficients = rng.normal(size=257) * 900.0, rng.normal(size=degree + 1)
+    x_before = x.copy()
+    assert np.array_equal(_polyval(x, coefficients), polynomial.polyval(x, coefficients))
+    assert np.array_equal(x, x_before)  # the argument is not overwritten by the in-place steps
