@@ -87,12 +87,12 @@ _TARGET_WINDOW = 2.0  # counts: "target reached"
 class DriveConnection:
     """One connection to the bus that the simulated drives of a process share (:func:`start_simulated_drives`).
 
-    python-can's virtual bus copies every frame to each connection and each connection's notifier thread
-    wakes up for it: with three drives, the master and the CAN tap on their own connections, each frame
-    was copied four times; with the drives on one, twice (the CAN threads took 12 % of a simulated
-    pick's CPU). Each drive is still a node of its own on the bus. The network connects with the first
-    drive to start and disconnects when the last one closes; a drive that closes (or goes silent) drops
-    its own subscriptions only.
+    python-can's virtual bus copies every frame to each connection, and each connection's notifier thread
+    wakes up for it (on the wall clock): with three drives, the master and the CAN tap on their own
+    connections, each frame was copied four times; with the drives on one, twice (the CAN threads took
+    12 % of a simulated pick's CPU). Each drive is still a node of its own on the bus. The network
+    connects with the first drive to start and disconnects when the last one closes; a drive that closes
+    (or goes silent) drops its own subscriptions only.
     """
 
     def __init__(self, bus: can.BusABC, clock: Clock) -> None:
