@@ -9,8 +9,8 @@ heartbeat, supervision and motion) reads one injected :class:`Clock`:
 * :class:`SimulatedClock` is a discrete-event clock. Time stands still until the one thread that
   drives it (the controller's) sleeps or waits; it then jumps from one scheduled event to the next,
   running each event (a SYNC, a heartbeat, a watchdog check) in that thread. Before and after each
-  event it lets the world settle: its settlers wait until the work an event started on other threads
-  is done (the CAN frames it sent handled by every node). The simulated world thus runs the same
+  event, and when work starts outside one, it lets the world settle: its settlers do, or wait for,
+  the work an event started (the CAN frames it sent handled by every node). The simulated world thus runs the same
   setpoints, drive physics and CAN messages as on the wall clock, as fast as the CPU allows, and
   nothing it does depends on wall time, so CPU load cannot fault a simulated pick. Rendering and
   measuring take no simulated time: the world stands still while the vision works.
@@ -157,6 +157,8 @@ class SimulatedClock(Clock):
         self._lock = threading.Lock()
         self._driver: threading.Thread | None = None
         self._settlers: list[_Settler] = []
+        self._settle_lock = threading.Lock()
+        self._settling: threading.Thread | None = None  # the thread calling the settlers
 
     def monotonic(self) -> float:
         return self._now / 1e9
@@ -175,13 +177,24 @@ class SimulatedClock(Clock):
     def add_settler(self, settle: Callable[[], bool]) -> Periodic:
         """Call ``settle()`` before and after every event until it is cancelled.
 
-        ``settle`` waits until work started on other threads is done, and returns whether there was
-        none; the settlers are called again until none of them had any.
+        ``settle`` does the work started meanwhile (or waits until other threads have done it), and
+        returns whether there was none; the settlers are called again until none of them had any. Only
+        one thread settles at a time.
         """
         settler = _Settler(self._settlers, settle)
         with self._lock:
             self._settlers.append(settler)
         return settler
+
+    def settle(self) -> None:
+        """Let the world settle now, between events: after work started outside them (a CAN frame the
+        controller sends between two waits, an SDO request whose answer it waits for).
+
+        Does nothing while a thread drives the clock, or from within a settler: the settling the
+        driver or that settler is part of handles the new work before time moves on.
+        """
+        if self._driver is None:
+            self._settle()
 
     def sleep(self, seconds: float) -> None:
         self._advance(self._now + _ns(max(seconds, 0.0)), None)
@@ -226,8 +239,16 @@ class SimulatedClock(Clock):
         return due
 
     def _settle(self) -> None:
-        while not all([settler.settle() for settler in list(self._settlers)]):
-            continue
+        me = threading.current_thread()
+        if self._settling is me:  # work a settler does started more: its loop below runs again
+            return
+        with self._settle_lock:
+            self._settling = me
+            try:
+                while not all([settler.settle() for settler in list(self._settlers)]):
+                    continue
+            finally:
+                self._settling = None
 
 
 def _ns(seconds: float) -> int:

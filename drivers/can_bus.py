@@ -14,7 +14,7 @@ from __future__ import annotations
 import collections
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import can
@@ -71,6 +71,18 @@ def open_bus(mapping: Any, where: str) -> can.BusABC:
     except (can.CanError, OSError, ImportError, TypeError, ValueError) as exc:
         raise ConfigError(f"{where}: cannot open {interface} bus on channel {channel!r}: {exc}") from exc
     return OwnEchoFilter(bus) if interface == "udp_multicast" else bus
+
+
+def handle_waiting(bus: can.BusABC, listeners: Sequence[can.Listener]) -> bool:
+    """Hand every frame waiting on ``bus`` (python-can's virtual bus) to ``listeners`` in this thread, as a
+    notifier thread would; whether there was none. A simulated clock's settling reads its buses so
+    (:class:`drivers.cia402_axis.ClockedNetwork`)."""
+    if not bus.queue.qsize():  # asked a few times an event, mostly idle
+        return True
+    while (msg := bus.recv(0)) is not None:
+        for listener in listeners:
+            listener.on_message_received(msg)
+    return False
 
 
 class OwnEchoFilter(can.BusABC):

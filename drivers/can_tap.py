@@ -11,8 +11,9 @@ from typing import Any
 
 import can
 
+from agf.clock import Clock, Periodic, SimulatedClock
 from agf.recorder import Recorder
-from drivers.can_bus import open_bus
+from drivers.can_bus import handle_waiting, open_bus
 
 
 class _ToRecorder(can.Listener):
@@ -35,14 +36,26 @@ class CanTap:
         Where the mapping comes from, for errors.
     recorder : Recorder
         Receives every frame with its receive timestamp.
+    clock : Clock, optional
+        The time of the nodes on the bus. On a simulated clock (a virtual bus) the frames are recorded as
+        the clock settles, in its thread, as its nodes handle theirs; otherwise by a notifier thread.
     """
 
-    def __init__(self, bus_mapping: Any, where: str, recorder: Recorder) -> None:
+    def __init__(self, bus_mapping: Any, where: str, recorder: Recorder, clock: Clock | None = None) -> None:
         self.bus = open_bus(bus_mapping, where)
-        self.notifier = can.Notifier(self.bus, [_ToRecorder(recorder)], timeout=0.1)
+        listeners = [_ToRecorder(recorder)]
+        self.notifier: can.Notifier | None = None
+        self._settler: Periodic | None = None
+        if isinstance(clock, SimulatedClock):
+            self._settler = clock.add_settler(lambda: handle_waiting(self.bus, listeners))
+        else:
+            self.notifier = can.Notifier(self.bus, listeners, timeout=0.1)
 
     def close(self) -> None:
-        self.notifier.stop()
+        if self._settler is not None:
+            self._settler.cancel()
+        if self.notifier is not None:
+            self.notifier.stop()
         self.bus.shutdown()
 
     def __enter__(self) -> CanTap:

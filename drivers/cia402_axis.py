@@ -48,7 +48,7 @@ from agf.axis import Axis, AxisFeedback, AxisLimits, AxisState
 from agf.clock import Clock, Periodic, SimulatedClock, WallClock
 from agf.config import child, section_from_mapping, unit
 from agf.errors import ConfigError, DriveFault
-from drivers.can_bus import open_bus
+from drivers.can_bus import handle_waiting, open_bus
 
 logger = logging.getLogger(__name__)
 
@@ -92,9 +92,8 @@ FEEDBACK_WINDOW, FEEDBACK_MISSING, FEEDBACK_GRACE = 100, 10, 10
 # SCHED_RR priorities (1..99) of the master's threads where the OS allows it: above every ordinary
 # process, far below the kernel's own interrupt threads (50)
 PRODUCER_PRIORITY, RECEIVE_PRIORITY, WATCHDOG_PRIORITY = 30, 29, 28
-#: Wall seconds, on a simulated clock, that a bus's frames may take to be handled before time moves on
-#: anyway, and that an SDO answer may take: the drives answer in this process, so only a hung thread
-#: (or a machine busy many times over) takes that long.
+#: Wall seconds, on a simulated clock, that an SDO answer may take: the drives answer in this process,
+#: at once (:class:`ClockedNetwork`), unless another thread drives the clock and settles it later.
 SIMULATED_WAIT = 30.0
 
 _STATUS_MASKS = {  # statusword -> collapsed axis state, order matters (fault bits first)
@@ -330,23 +329,36 @@ def drive_settings_from_mapping(name: str, data: Any, where: str, base_dir: Path
 class ClockedNetwork(canopen.Network):
     """A ``canopen.Network`` whose periodic messages (SYNC, heartbeats) keep the given clock's time.
 
-    On the wall clock they are python-can's periodic sends, as in canopen. On a simulated clock they
-    are events of that clock, and after every event the clock waits until each frame sent on the bus
-    has been handled by its receivers (python-can's virtual bus counts them on its queues): every SYNC
-    then moves each drive one step and brings its TPDOs back before time moves on, as fast as the
-    threads run and independent of how fast they run.
+    On the wall clock they are python-can's periodic sends, and a notifier thread hands the frames
+    received to canopen, as in canopen. On a simulated clock they are events of that clock, and the
+    network has no notifier thread: the clock's settling hands every frame waiting on the bus (python-
+    can's virtual bus) to canopen (:meth:`canopen.Network.notify`), in the thread that drives the clock,
+    after each event and after each frame sent outside one. Every SYNC thus moves each drive one step
+    and brings its TPDOs back before time moves on, and an SDO request has its answer when it returns,
+    with no hand-off between threads (two a SYNC cycle were the largest cost of a simulated pick's
+    control loop).
     """
 
     def __init__(self, bus: can.BusABC, clock: Clock) -> None:
         super().__init__(bus)
         self.clock = clock
+        self._simulated = clock if isinstance(clock, SimulatedClock) else None
         self._settler: Periodic | None = None
-        if isinstance(clock, SimulatedClock):
-            self._queue = getattr(bus, "queue", None)
-            if not isinstance(self._queue, queue.Queue):
+        if self._simulated is not None:
+            if not isinstance(getattr(bus, "queue", None), queue.Queue):
                 raise ConfigError(f"a simulated clock needs python-can's virtual bus, not {bus.channel_info}")
-            self.listeners.append(_Handled(self._queue))
-            self._settler = clock.add_settler(self._settle)
+
+    def connect(self, *args: Any, **kwargs: Any) -> ClockedNetwork:
+        if self._simulated is None:
+            return super().connect(*args, **kwargs)
+        if self._settler is None:
+            self._settler = self._simulated.add_settler(self._settle)
+        return self
+
+    def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
+        super().send_message(can_id, data, remote)
+        if self._simulated is not None:
+            self._simulated.settle()  # outside an event the frame is handled now, else when the event ends
 
     def send_periodic(self, can_id: int, data: bytes, period: float, remote: bool = False) -> Any:
         if self.clock.realtime:
@@ -356,33 +368,13 @@ class ClockedNetwork(canopen.Network):
     def disconnect(self) -> None:
         if self._settler is not None:
             self._settler.cancel()
+            self._settler = None
         super().disconnect()
 
     def _settle(self) -> bool:
-        """Wait until every frame this node received has been handled; whether none was pending."""
-        if self._queue.unfinished_tasks == 0:  # first without the lock: asked about 37 times a cycle, mostly idle
-            return True
-        pending = self._queue.all_tasks_done
-        with pending:
-            if self._queue.unfinished_tasks == 0:
-                return True
-            if not pending.wait_for(lambda: self._queue.unfinished_tasks == 0, SIMULATED_WAIT):
-                logger.warning("CAN frames not handled within %.0f s of wall time; simulated time goes on",
-                               SIMULATED_WAIT)
-        return False
-
-
-class _Handled(can.Listener):
-    """The last listener of a virtual bus's notifier: marks each frame handled on the bus's queue."""
-
-    def __init__(self, frames: queue.Queue) -> None:
-        self._frames = frames
-
-    def on_message_received(self, msg: can.Message) -> None:
-        self._frames.task_done()
-
-    def stop(self) -> None:
-        """Nothing to release."""
+        """Hand every frame this node has received to canopen; whether there was none."""
+        bus = self.bus  # None once disconnected, maybe by another thread (a drive going silent)
+        return bus is None or handle_waiting(bus, self.listeners)
 
 
 class _ClockedMessage:

@@ -82,17 +82,18 @@ _DEFAULTS = {  # used when the object dictionary in use has no such object (coun
     0x6084: 100_000, 0x6085: 400_000, 0x60C5: 200_000, 0x605A: 6,
 }
 _TARGET_WINDOW = 2.0  # counts: "target reached"
+_UNREAD = object()  # a setting not read yet (SimDrive._param)
 
 
 class DriveConnection:
     """One connection to the bus that the simulated drives of a process share (:func:`start_simulated_drives`).
 
-    python-can's virtual bus copies every frame to each connection and each connection's notifier thread
-    wakes up for it: with three drives, the master and the CAN tap on their own connections, each frame
-    was copied four times; with the drives on one, twice (the CAN threads took 12 % of a simulated
-    pick's CPU). Each drive is still a node of its own on the bus. The network connects with the first
-    drive to start and disconnects when the last one closes; a drive that closes (or goes silent) drops
-    its own subscriptions only.
+    python-can's virtual bus copies every frame to each connection, and each connection's notifier thread
+    wakes up for it (on the wall clock): with three drives, the master and the CAN tap on their own
+    connections, each frame was copied four times; with the drives on one, twice (the CAN threads took
+    12 % of a simulated pick's CPU). Each drive is still a node of its own on the bus. The network
+    connects with the first drive to start and disconnects when the last one closes; a drive that closes
+    (or goes silent) drops its own subscriptions only.
     """
 
     def __init__(self, bus: can.BusABC, clock: Clock) -> None:
@@ -179,6 +180,7 @@ class SimDrive:
         self._last_sent: dict[int, bytes] = {}
         self._pdo_dirty = True
         self._sdo_faults: dict[int, tuple[str, int]] = {}  # index -> (timeout | abort, how many more times)
+        self._params: dict[tuple[int, int], int | None] = {}  # (index, subindex) -> value, None: none (_param)
         self._stop = threading.Event()
         self.node.add_read_callback(self._on_read)
         self.node.add_write_callback(self._on_write)
@@ -277,6 +279,7 @@ class SimDrive:
             self.state, self.velocity, self.error_code = "SWITCH ON DISABLED", 0.0, 0
             self._setpoint, self._controlword, self._pp_goal, self._pp_velocity = self.position, 0, None, 0.0
             self.node.data_store.clear()
+            self._params.clear()
             if 0x1006 in self.node.object_dictionary:
                 self.node.data_store[0x1006] = {0: struct.pack("<I", round(self._cycle * 1e6))}
             self.mode = self._param(0x6060, 0, 0) if self._param(0x6060, 0, 0) in (1, 8) else 0
@@ -307,13 +310,27 @@ class SimDrive:
 
     # -- object dictionary -------------------------------------------------------------------------
     def _param(self, index: int, subindex: int = 0, default: int | None = None) -> int:
-        fallback = _DEFAULTS.get(index, 0) if default is None else default
+        """A setting of the object dictionary (not one :meth:`_on_read` answers), else ``default`` (else ours).
+
+        Settings change only when written, and :meth:`_on_write` keeps each value read: the motion reads six
+        of them on every SYNC, and reading one from the object dictionary was most of the cost of a step."""
+        value = self._params.get((index, subindex), _UNREAD)
+        if value is _UNREAD:
+            with self._lock:  # a write stores its value first: the dictionary's older one must not replace it
+                value = self._params.get((index, subindex), _UNREAD)
+                if value is _UNREAD:
+                    value = self._params[index, subindex] = self._stored(index, subindex)
+        if value is None:
+            return _DEFAULTS.get(index, 0) if default is None else default
+        return value
+
+    def _stored(self, index: int, subindex: int) -> int | None:
         if index not in self.node.object_dictionary:
-            return fallback
+            return None
         try:
             return self._decode(index, subindex)
         except canopen.SdoAbortedError:
-            return fallback
+            return None
 
     def _cycle_period(self) -> float:
         return self._param(0x1006, 0, 0) / 1e6 or self._cycle
@@ -343,6 +360,9 @@ class SimDrive:
 
     def _on_write(self, index: int, subindex: int, od: Any, data: bytes) -> None:
         value = od.decode_raw(data) if od.data_type in canopen.objectdictionary.NUMBER_TYPES else None
+        if value is not None:
+            with self._lock:  # what _param reads from now on (the node stores the data after this callback)
+                self._params[index, subindex] = value
         if index == 0x6040:
             self._on_controlword(value)
         elif index == 0x6060:
@@ -606,7 +626,7 @@ class SimDrive:
     def _clamp(self, counts: float) -> float:
         if 0x607D not in self.node.object_dictionary:
             return counts
-        low, high = self._decode(0x607D, 1), self._decode(0x607D, 2)
+        low, high = self._param(0x607D, 1), self._param(0x607D, 2)
         return max(low, min(high, counts)) if low < high else counts
 
 

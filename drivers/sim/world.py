@@ -210,14 +210,15 @@ class SimulatedWorld:
 
 
 @contextlib.contextmanager
-def pick_log(config: Config, scene: Scene, name: str) -> Iterator[McapRecorder]:
-    """The pick's MCAP log in the configured folder, with the bus traffic from before the drives start."""
+def pick_log(config: Config, scene: Scene, name: str, clock: Clock | None = None) -> Iterator[McapRecorder]:
+    """The pick's MCAP log in the configured folder, with the bus traffic from before the drives start;
+    ``clock`` is the time of the pick's bus (the wall clock by default; see :class:`drivers.can_tap.CanTap`)."""
     setup = MeasurementSetup.from_config(config, scene.pallet.type if scene.pallet else None)
     truth = {"scene_pallet_in_fork": json.dumps(scene.pallet.in_fork.to_dict())} if scene.pallet else {}
     fork_in_truck = functools.partial(fork_in_truck_from_axes, mast=MastGeometry())
     with (
         open_pick_log(config, name, setup, context={"command": name, **truth}, fork_in_truck=fork_in_truck) as log,
-        CanTap(config.sections["bus"], f"{config.source}: bus", log),
+        CanTap(config.sections["bus"], f"{config.source}: bus", log, clock),
     ):
         yield log
 
@@ -308,7 +309,11 @@ def _pick(config: Config, plots: Path | None, base: Scene, seed: int, random: bo
     ``plots``/pick-NNN when ``plots`` is given. ``random``: the scene is :func:`campaign_scene`, else ``base``."""
     scene = campaign_scene(base, seed, index) if random else base
     try:
-        with pick_log(config, scene, f"simulate-pick-{index:03d}") as log, SimulatedWorld(config, scene) as world:
+        clock = world_clock(config)  # the bus's, for the log's CAN tap too
+        with (
+            pick_log(config, scene, f"simulate-pick-{index:03d}", clock) as log,
+            SimulatedWorld(config, scene, clock) as world,
+        ):
             result = world.controller(recorder=log).run()
             summary = {**pick_summary(result, world), "log": str(log.path)}
         if plots is not None:
