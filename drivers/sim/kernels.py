@@ -228,6 +228,9 @@ def shade_look(origins, directions, distance, normals, local, index, kind, R, c,
     # The loops over lights' occluders and over pallets stay in this body: around a loop in an inlined
     # helper numba keeps the reference counting of every array argument, two atomic updates per array
     # and call (they took a third of the shading time).
+    # Neighbouring points mostly lie in the same box's shadow: the box that last shadowed a point from a
+    # light is tried first (a point is in shadow if any listed box is in the way, whatever the order).
+    last = np.full(lights.shape[0], -1, np.int64)
     for i in range(origins.shape[0]):
         k = index[i]
         if k < 0:
@@ -248,14 +251,24 @@ def shade_look(origins, directions, distance, normals, local, index, kind, R, c,
         eb, eg, er = ambient, ambient, ambient
         for n in range(lights.shape[0]):
             e, cell, ox, oy, oz, wx, wy, wz, reach, vx, vy, height = _light(n, px, py, pz, nx, ny, nz, lights, grids)
+            shadowed, first = False, last[n]
             if cell >= 0:
-                for j in range(starts[n, cell], starts[n, cell + 1]):
+                begin, end = starts[n, cell], starts[n, cell + 1]
+                for j in range(begin, end):  # the box that shadowed this light's last shadowed point, if listed
+                    if objs[j] == first:
+                        shadowed = (first != k and not _apart(bounds, n, first, vx, vy, height)
+                                    and hit(first, kind, R, c, half, ox, oy, oz, wx, wy, wz)[0] < reach)
+                        break
+                j = begin
+                while not shadowed and j < end:
                     box = objs[j]
-                    if box == k or _apart(bounds, n, box, vx, vy, height):
+                    j += 1
+                    if box == k or box == first or _apart(bounds, n, box, vx, vy, height):
                         continue  # the shadow ray leaves the point's own box; it cannot reach this one
                     if hit(box, kind, R, c, half, ox, oy, oz, wx, wy, wz)[0] < reach:
-                        e = 0.0
-                        break
+                        shadowed, last[n] = True, box
+            if shadowed:
+                e = 0.0
             eb += e * lights[n, 2]
             eg += e * lights[n, 3]
             er += e * lights[n, 4]
