@@ -1,6 +1,6 @@
 """Compiled kernels of the renderers (numba): ray-box and ray-plane hits, nearest hits of many rays with
 per-tile object lists, the randomised look's shading (textures, lights, hard shadows, pocket
-occlusion) and its sensor's last step (shot noise, 8-bit rounding).
+occlusion) and steps of its sensor (where the gamma has work, shot noise, 8-bit rounding).
 
 Objects are packed once per frame into arrays (:func:`pack_objects`): type (0 box, 1 plane), rotation
 and centre (object to camera frame), half extents, and the packed :class:`~drivers.sim.textures.Style`.
@@ -367,3 +367,22 @@ def add_shot_noise(image, noise, out):  # pragma: no cover - compiled
         value = image[i]
         sigma = np.sqrt(min(max(value, zero), top) * gain + floor)
         out[i] = np.uint8(np.rint(min(max(value + sigma * noise[i], zero), top)))
+
+
+@njit(cache=True)
+def nonzero_spans(rows, band, spans):  # pragma: no cover - compiled
+    """Fills ``spans`` (B, 2) with the columns [first, last + 1) between which each ``band`` rows of ``rows``
+    (H, W) hold their non-zero values (first = last + 1 where there are none)."""
+    h, w = rows.shape
+    for k in range(spans.shape[0]):
+        first, stop = w, 0
+        for v in range(k * band, min(k * band + band, h)):
+            u = 0
+            while u < first and rows[v, u] == 0.0:
+                u += 1
+            first = u
+            u = w
+            while u > stop and rows[v, u - 1] == 0.0:
+                u -= 1
+            stop = u
+        spans[k, 0], spans[k, 1] = first, max(first, stop)
