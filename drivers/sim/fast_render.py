@@ -47,9 +47,9 @@ from agf.config import ForkGeometry
 from agf.frames import JpegImage, pixels_sent
 from agf.scene import Scene
 from drivers.sim import render as reference
-from drivers.sim.kernels import CORNERS, cast_tiled, gather_hits, pack_objects, tile_lists
+from drivers.sim.kernels import cast_tiled, gather_hits, pack_objects, tile_lists
 from drivers.sim.looks import Look, draw_look
-from drivers.sim.raycast import Hits, screen_rectangles
+from drivers.sim.raycast import CORNERS, Hits, screen_rectangles
 
 Array = NDArray[np.float64]
 TILE = 32  # px

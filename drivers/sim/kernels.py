@@ -16,12 +16,11 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from drivers.sim.raycast import Box
+from drivers.sim.raycast import CORNERS, Box
 from drivers.sim.textures import texel
 
 Array = NDArray[np.float64]
 GRID = 32  # cells per side of a light's occluder grid
-CORNERS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)  # of a box, in halves
 SHADOW_BIAS = 2e-4  # m along the normal: a shadow ray must not hit its own surface
 
 
