@@ -47,9 +47,9 @@ from agf.config import ForkGeometry
 from agf.frames import JpegImage, pixels_sent
 from agf.scene import Scene
 from drivers.sim import render as reference
-from drivers.sim.kernels import CORNERS, cast_tiled, gather_hits, pack_objects, tile_lists
+from drivers.sim.kernels import cast_tiled, gather_hits, pack_objects, tile_lists
 from drivers.sim.looks import Look, draw_look
-from drivers.sim.raycast import Hits, screen_rectangles
+from drivers.sim.raycast import CORNERS, Hits, screen_rectangles
 
 Array = NDArray[np.float64]
 TILE = 32  # px
@@ -66,7 +66,7 @@ class PixelRays:
     origins: NDArray[np.float32]  # (N, 3), m
     directions: NDArray[np.float32]  # (N, 3), unit
     tile: NDArray[np.int64]  # (N,): the 32 x 32 tile of each pixel, row by row
-    incidence: NDArray[np.float32]  # (N,), rad
+    falloff: NDArray[np.float32]  # (N,): (incidence / the camera's max incidence)², what vignetting scales
     flat: NDArray[np.int64]  # (N,): each ray's pixel in the flattened image (row-major)
     tile_axis: Array  # (T, 3), unit: a cone around the rays of each tile and of its one-pixel ring ...
     tile_spread: Array  # (T,), rad: ... and its half-angle (pi for a tile outside the field of view)
@@ -100,13 +100,14 @@ def _pixel_rays(camera: CameraModel) -> PixelRays:
     index = index.reshape(camera.height, camera.width)
     ntx, nty = -(-camera.width // TILE), -(-camera.height // TILE)
     tile = (vv.ravel()[inside] // TILE) * ntx + uu.ravel()[inside] // TILE
-    incidence = np.arccos(np.clip(directions[:, 0], -1.0, 1.0))
+    # float32 steps, as numpy takes them on float32 incidences
+    ratio = np.arccos(np.clip(directions[:, 0], -1.0, 1.0)).astype(np.float32) / np.float32(camera.max_incidence)
     origins, directions = origins.astype(np.float32), directions.astype(np.float32)
     axis, spread = np.zeros((ntx * nty, 3)), np.full(ntx * nty, np.pi)
     _tile_cones(index, directions, TILE, axis, spread)
     centre = (origins.max(axis=0) + origins.min(axis=0)) / 2.0
     reach = float(np.linalg.norm(origins - centre, axis=1).max())
-    return PixelRays(index, origins, directions, tile.astype(np.int64), incidence.astype(np.float32),
+    return PixelRays(index, origins, directions, tile.astype(np.int64), ratio * ratio,
                      np.flatnonzero(inside), axis, spread, centre, reach)
 
 
@@ -199,8 +200,8 @@ def _trace(
     own = own[: _share_samples(u, v, 8 * sub[1] + sub[2], keys, rays.index, row, region, source, own)]
     sub_colour = _shaded(shade, objects, pallets, own, sub_o, sub_d, sub, packed)
     image = np.zeros((camera.height, camera.width, 3), gain.dtype)
-    _compose(rays.flat, row, colour, rays.index[v, u], source, sub_colour, rays.incidence,
-             np.float32(camera.max_incidence), np.float32(vignetting), light, gain, image.reshape(-1, 3))
+    _compose(rays.flat, row, colour, rays.index[v, u], source, sub_colour, rays.falloff, np.float32(vignetting),
+             light, gain, image.reshape(-1, 3))
     return image
 
 
@@ -405,22 +406,22 @@ def _share_samples(u, v, sample_keys, keys, index, row, region, source, own):  #
 
 
 @njit(cache=True)
-def _compose(flat, row, colour, edges, source, sub_colour, incidence, max_incidence, vignetting, light, gain,
+def _compose(flat, row, colour, edges, source, sub_colour, falloff, vignetting, light, gain,
              image):  # pragma: no cover - compiled
     """Writes each ray's colour into its pixel ``flat`` (N,) of ``image`` (H * W, 3): the row ``row`` (N,)
     of ``colour`` (S, 3), or for the rays ``edges`` (E,) the mean of their four sub-samples' (``source``
-    (4 E,), see :func:`_share_samples`; ``sub_colour`` (S', 3)), times the vignetting (``incidence``
-    (N,), rad, float32) and ``light``, rounded to the image's type, times ``gain`` (3,) and floored at
-    zero: numpy's steps on these types (its mean over four sums them in order)."""
+    (4 E,), see :func:`_share_samples`; ``sub_colour`` (S', 3)), times the vignetting (1 - ``vignetting``
+    ``falloff`` (N,), float32: see :class:`PixelRays`) and ``light``, rounded to the image's type, times
+    ``gain`` (3,) and floored at zero: numpy's steps on these types (its mean over four sums them in order)."""
     zero = image.dtype.type(0.0)
     for i in range(flat.shape[0]):
         if row[i] >= 0:
-            factor = _vignetting(incidence[i], max_incidence, vignetting)
+            factor = np.float32(1.0) - vignetting * falloff[i]
             for c in range(3):
                 image[flat[i], c] = max(image.dtype.type(colour[row[i], c] * factor * light) * gain[c], zero)
     for e in range(edges.shape[0]):
         i = edges[e]
-        factor = _vignetting(incidence[i], max_incidence, vignetting)
+        factor = np.float32(1.0) - vignetting * falloff[i]
         for c in range(3):
             # -0.0 + x is x: the sum starts with the first sample, as numpy's does. (No helper picks the
             # sample: an inlined helper choosing between two arrays costs reference counting per call.)
@@ -428,13 +429,6 @@ def _compose(flat, row, colour, edges, source, sub_colour, incidence, max_incide
             for k in range(4 * e, 4 * e + 4):
                 total += colour[source[k], c] if source[k] >= 0 else sub_colour[-1 - source[k], c]
             image[flat[i], c] = max(image.dtype.type(total / 4 * factor * light) * gain[c], zero)
-
-
-@njit(cache=True, inline="always")
-def _vignetting(incidence, max_incidence, strength):  # pragma: no cover - compiled
-    """1 - strength (incidence / max_incidence)², float32 throughout as numpy computes it on float32 rays."""
-    ratio = incidence / max_incidence
-    return np.float32(1.0) - strength * (ratio * ratio)
 
 
 def _sub_rays(pixels: NDArray, offsets: Array, rays: PixelRays) -> tuple[Array, Array]:

@@ -1,6 +1,6 @@
 """Compiled kernels of the renderers (numba): ray-box and ray-plane hits, nearest hits of many rays with
 per-tile object lists, the randomised look's shading (textures, lights, hard shadows, pocket
-occlusion) and its sensor's last step (shot noise, 8-bit rounding).
+occlusion) and steps of its sensor (where the gamma has work, shot noise, 8-bit rounding).
 
 Objects are packed once per frame into arrays (:func:`pack_objects`): type (0 box, 1 plane), rotation
 and centre (object to camera frame), half extents, and the packed :class:`~drivers.sim.textures.Style`.
@@ -16,12 +16,11 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from drivers.sim.raycast import Box
+from drivers.sim.raycast import CORNERS, Box
 from drivers.sim.textures import texel
 
 Array = NDArray[np.float64]
 GRID = 32  # cells per side of a light's occluder grid
-CORNERS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)  # of a box, in halves
 SHADOW_BIAS = 2e-4  # m along the normal: a shadow ray must not hit its own surface
 
 
@@ -228,6 +227,9 @@ def shade_look(origins, directions, distance, normals, local, index, kind, R, c,
     # The loops over lights' occluders and over pallets stay in this body: around a loop in an inlined
     # helper numba keeps the reference counting of every array argument, two atomic updates per array
     # and call (they took a third of the shading time).
+    # Neighbouring points mostly lie in the same box's shadow: the box that last shadowed a point from a
+    # light is tried first (a point is in shadow if any listed box is in the way, whatever the order).
+    last = np.full(lights.shape[0], -1, np.int64)
     for i in range(origins.shape[0]):
         k = index[i]
         if k < 0:
@@ -248,14 +250,24 @@ def shade_look(origins, directions, distance, normals, local, index, kind, R, c,
         eb, eg, er = ambient, ambient, ambient
         for n in range(lights.shape[0]):
             e, cell, ox, oy, oz, wx, wy, wz, reach, vx, vy, height = _light(n, px, py, pz, nx, ny, nz, lights, grids)
+            shadowed, first = False, last[n]
             if cell >= 0:
-                for j in range(starts[n, cell], starts[n, cell + 1]):
+                begin, end = starts[n, cell], starts[n, cell + 1]
+                for j in range(begin, end):  # the box that shadowed this light's last shadowed point, if listed
+                    if objs[j] == first:
+                        shadowed = (first != k and not _apart(bounds, n, first, vx, vy, height)
+                                    and hit(first, kind, R, c, half, ox, oy, oz, wx, wy, wz)[0] < reach)
+                        break
+                j = begin
+                while not shadowed and j < end:
                     box = objs[j]
-                    if box == k or _apart(bounds, n, box, vx, vy, height):
+                    j += 1
+                    if box == k or box == first or _apart(bounds, n, box, vx, vy, height):
                         continue  # the shadow ray leaves the point's own box; it cannot reach this one
                     if hit(box, kind, R, c, half, ox, oy, oz, wx, wy, wz)[0] < reach:
-                        e = 0.0
-                        break
+                        shadowed, last[n] = True, box
+            if shadowed:
+                e = 0.0
             eb += e * lights[n, 2]
             eg += e * lights[n, 3]
             er += e * lights[n, 4]
@@ -354,3 +366,22 @@ def add_shot_noise(image, noise, out):  # pragma: no cover - compiled
         value = image[i]
         sigma = np.sqrt(min(max(value, zero), top) * gain + floor)
         out[i] = np.uint8(np.rint(min(max(value + sigma * noise[i], zero), top)))
+
+
+@njit(cache=True)
+def nonzero_spans(rows, band, spans):  # pragma: no cover - compiled
+    """Fills ``spans`` (B, 2) with the columns [first, last + 1) between which each ``band`` rows of ``rows``
+    (H, W) hold their non-zero values (first = last + 1 where there are none)."""
+    h, w = rows.shape
+    for k in range(spans.shape[0]):
+        first, stop = w, 0
+        for v in range(k * band, min(k * band + band, h)):
+            u = 0
+            while u < first and rows[v, u] == 0.0:
+                u += 1
+            first = u
+            u = w
+            while u > stop and rows[v, u - 1] == 0.0:
+                u -= 1
+            stop = u
+        spans[k, 0], spans[k, 1] = first, max(first, stop)

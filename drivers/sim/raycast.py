@@ -17,6 +17,10 @@ from agf.camera.base import CameraModel
 from agf.geometry import Transform
 
 Array = NDArray[np.float64]
+CORNERS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float)  # of a box, in halves
+_EDGES = np.array([(a, b) for a in range(8) for b in range(a + 1, 8)
+                   if np.sum(CORNERS[a] != CORNERS[b]) == 1])  # (12, 2): the corners each box edge joins
+_ALONG = np.linspace(0.0, 1.0, 9)[:, None]  # (9, 1): where :func:`screen_rectangles` samples an edge
 
 
 @dataclass(frozen=True)
@@ -134,15 +138,12 @@ def screen_rectangles(camera: CameraModel, objects: list[Box | Plane], margin: f
     """Image rectangle (u0, v0, u1, v1) each box can cover, or None for 'anywhere' (planes, boxes
     reaching behind the lens)."""
     rects: list[Array | None] = []
-    corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float)
-    s = np.linspace(0.0, 1.0, 9)[:, None]
     for obj in objects:
         if isinstance(obj, Plane):
             rects.append(None)
             continue
-        c = corners * obj.half
-        edges = np.concatenate([c[a] + s * (c[b] - c[a]) for a in range(8) for b in range(a + 1, 8)
-                                if np.sum(corners[a] != corners[b]) == 1])
+        c = CORNERS * obj.half
+        edges = (c[_EDGES[:, :1]] + _ALONG * (c[_EDGES[:, 1:]] - c[_EDGES[:, :1]])).reshape(-1, 3)
         pixels, valid = camera.project(obj.pose.apply(edges))
         if not valid.all():
             rects.append(None)

@@ -38,13 +38,14 @@ from agf.geometry import Transform
 from agf.pallets import PalletType, load_pallets, pallet_type
 from agf.paths import repo_path
 from agf.scene import Scene, load_scene
-from drivers.sim.kernels import add_shot_noise, pack_lights, pack_objects, shade_look
+from drivers.sim.kernels import add_shot_noise, nonzero_spans, pack_lights, pack_objects, shade_look
 from drivers.sim.looks import CameraLight, Look, draw_look
 from drivers.sim.raycast import Box, Plane, cast, screen_rectangles
 
 Array = NDArray[np.float64]
 CATALOGUE = repo_path("configs/pallets.yaml")
 BAND_ROWS = 48
+GAMMA_ROWS = 8  # image rows the gamma spans at once (the field of view's outline bounds their columns)
 NOISE_ROWS = 64  # image rows a random look's sensor draws noise for at once (the rest of the work in cache)
 SKY = 0.62  # albedo-like brightness of rays that hit nothing (a bright hall)
 VIGNETTING = 0.35  # brightness lost at the edge of the field of view (fixed look)
@@ -574,9 +575,12 @@ def develop_look(image: NDArray[np.float32], look: Look, rng: np.random.Generato
 def _gamma(image: NDArray[np.float32], gamma: float) -> None:
     """255 image ** gamma in place (``image`` not negative, 0..1 but for highlights)."""
     # OpenCV's pow spends 13 ns on a zero (a quarter of a frame lies outside the field of view), 1 on
-    # another value: zeros go in as ones and come out as the zeros pow makes of them
-    zero = image == 0.0
-    np.copyto(image, 1.0, where=zero)
-    cv2.pow(image, gamma, dst=image)
-    np.copyto(image, 0.0, where=zero)
-    image *= 255.0
+    # another value, and makes zeros of zeros: it only takes the columns of each band of rows between
+    # their first and last non-zero values
+    rows = image.reshape(len(image), -1)
+    spans = np.empty((-(-len(rows) // GAMMA_ROWS), 2), np.int64)
+    nonzero_spans(rows, GAMMA_ROWS, spans)
+    for top, (first, stop) in zip(range(0, len(rows), GAMMA_ROWS), spans.tolist(), strict=True):
+        band = rows[top : top + GAMMA_ROWS, first:stop]
+        cv2.pow(band, gamma, dst=band)
+        band *= 255.0
