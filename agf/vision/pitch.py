@@ -50,13 +50,9 @@ class PitchConfig:
     load_reach: float = 1.0  # ... and how far up a found edge is followed for the fit: over 0.4 m, sensor
     # noise leaned the pair 0.07-0.17 deg on 13 random loaded picks; followed up a 0.5-1 m load, 0.05 deg at most
     rival_gap: float = 12.0  # panorama pixels: a parallel line this close to an edge makes it ambiguous ...
-    rival_pitch: float = math.radians(0.05)  # ... unless the pitch with it instead is within this: a line
+    rival_pitch: float = math.radians(0.03)  # ... unless the pitch with it instead is within this: a line
     # parallel in 3D (the deck board's lower edge, a bed seam, an upright beside a level load) gives the
-    # same direction, hence the same pitch; only where the edge lies stays in doubt. Half the 0.1 deg promised, the
-    # spread in the pitch's sigma: on 574 randomised first frames (campaign seeds 7 and 4242, paper scenes under
-    # random looks) 0.03 refused 6 frames that 0.05 measures within bounds, none outside; 0.1 measured 13, but 4 of
-    # them 0.074-0.093 deg off (deck edges beside a shadow, pairings 0.06-0.09 deg apart: the strongest pairing
-    # erred by about the spread, the pairings' mean no less)
+    # same direction, hence the same pitch; only where the edge lies stays in doubt
     anchor_tolerance: float = 5.0  # panorama pixels: an edge this close to the point the pose pins ...
     anchor_gap: float = 3.0  # ... beats a rival that misses that point by this many pixels more
     anchor_lines: int = 2  # lines after the strongest searched for one through that point (_line_through) ...

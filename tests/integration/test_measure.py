@@ -292,25 +292,6 @@ def test_regression_a_load_face_whose_lines_fix_the_pitch_to_0_02_deg_gives_it_d
                        config=MeasureConfig(pitch=PitchConfig(face_alone_tight=0.0)))
 
 
-@pytest.mark.parametrize(("index", "hypothesis"), [(161, "unloaded"), (107, "loaded")])
-def test_regression_a_second_line_whose_pitch_differs_by_0_04_deg_no_longer_refuses(index, hypothesis):
-    """Campaign seed 7, picks 161 (unloaded, pitch 3.24 deg, six uprights and a neighbour) and 107 (loaded on a
-    truck bed, -4.62 deg): a second line beside an edge paired with the other edge into pitches 0.037 and 0.034 deg
-    apart, and the pair was refused as ambiguous at PitchConfig.rival_pitch 0.03 deg; both measure within bounds
-    once pitches within 0.05 deg (half the 0.1 deg promised) count as one, their spread in the pitch's sigma."""
-    from agf.vision.measure import MeasureConfig
-    from agf.vision.pitch import PitchConfig
-
-    scene, image = campaign_first_frame(7, index)
-    pallet, camera = CATALOGUE[scene.pallet.type], load_camera(scene.camera)
-    detail = measure_pallet(image, camera, scene.camera_in_fork, pallet, CONFIG.vision.search, forks=CONFIG.forks)
-    assert detail.measurement.loaded == (hypothesis == "loaded")
-    assert within_bounds(errors(scene, detail.measurement)), errors(scene, detail.measurement)
-    with pytest.raises(MeasurementError, match=f"second line runs beside the {hypothesis} edges"):
-        measure_pallet(image, camera, scene.camera_in_fork, pallet, CONFIG.vision.search, forks=CONFIG.forks,
-                       config=MeasureConfig(pitch=PitchConfig(rival_pitch=math.radians(0.03))))
-
-
 def test_regression_deck_edges_found_from_one_side_only_settle_on_their_pitch():
     """Paper scene unloaded-middle-rear-up under random look 0: the deck edges gave -0.97 deg (truth -0.99), and
     searched again from 0.3 deg below they gave it again, from 0.3 deg above no pair at all: refused as "do not
