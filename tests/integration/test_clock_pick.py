@@ -220,6 +220,15 @@ def test_regression_campaign_pick_22_of_seed_7_accepts_no_measurement_outside_bo
 
 
 
+
+@pytest.mark.parametrize("index", (107, 132))
+def test_regression_campaign_picks_of_seed_7_a_rival_pairing_within_0_05_deg_keeps_the_pair_ambiguous(index):
+    """Session 33 let an edge's pairing with a line beside it count as the same pitch up to 0.05 deg instead of 0.03
+    (PitchConfig.rival_pitch): 6 more of 574 randomised first frames measured within bounds and none outside, but in
+    the 1000-pick campaign pick 132 (loaded) accepted the frame after its viewing move 0.30 deg off, and pick 107
+    its verifying frame after a withdrawal 0.114 deg off. At 0.03 neither accepts a measurement outside the bounds."""
+    assert_no_measurement_outside_bounds(7, index)
+
 def test_regression_campaign_pick_386_of_seed_7_ends_refused_not_in_the_pallet():
     """An unloaded pallet pitched 2.28 deg on a truck bed, a shadow's edge beside a deck edge: its first frame was
     accepted 1.58 deg low, its verifying frame 38 mm low, and the pick re-planned on the latter and drove the tines
