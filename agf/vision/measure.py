@@ -95,6 +95,12 @@ class MeasureConfig:
     # refused, as its deck edges miss the deck's corners at the face's pose: check_deck_corners).
     face_fallback_max: float = 0.01
     face_fallback_lead: float = 0.25
+    # The deck edges' direction gives yaw and pitch together, and the face's own pose keeps only the pitch. When
+    # the direction's yaw differs from the face's by more than the face edges resolve (they judge yaw shifts of
+    # 0.5 deg, EdgeAgreementConfig.yaw_shifts), the lines are not the deck's edges and their pitch is not the
+    # deck's: campaign seed 7, pick 386 (a shadow's edges beside an unloaded deck on a truck bed) kept a pitch
+    # 1.9 deg off, its face 34 mm low, from edges 1.2 deg off the face's yaw.
+    face_fallback_yaw: float = math.radians(0.5)
     # At a new pitch the pose is refined from the last one when the wide search was unambiguous (its
     # margin at least the pose search's minimum); a refinement moving it further than this is replaced
     # by a search nearby.
@@ -288,9 +294,17 @@ def measure_pallet(
     ) -> None:
         """Refuse the face's own pose, confirmed where the deck edges' ``placed`` was not (its edges agreed
         ``other``), when the two are more than :attr:`MeasureConfig.face_fallback_max` apart and its face
-        edges do not agree clearly better there (:attr:`MeasureConfig.face_fallback_lead`), or when the deck
+        edges do not agree clearly better there (:attr:`MeasureConfig.face_fallback_lead`), when the deck edges
+        turn it in yaw by more than :attr:`MeasureConfig.face_fallback_yaw`, or when the deck
         ``edges``, whose pitch it keeps, miss the deck's front corners at it (:func:`check_deck_corners`)."""
         apart = _distance(own.pallet_in_fork, placed.pallet_in_fork)
+        turned = abs(math.remainder(own.pallet_in_fork.euler[0] - placed.pallet_in_fork.euler[0], math.tau))
+        if turned > config.face_fallback_yaw:
+            raise MeasurementError(
+                f"the top deck's edges run {math.degrees(turned):.2f} deg in yaw from the front face's match (at "
+                f"most {math.degrees(config.face_fallback_yaw):.2f}), so their pitch is not the deck's; refusing "
+                "rather than guessing"
+            )
         if apart > config.face_fallback_max and agreement.score - other.score < config.face_fallback_lead:
             raise MeasurementError(
                 f"the top deck's edges put the pallet {apart * 1e3:.0f} mm from the front face's match (at most "
