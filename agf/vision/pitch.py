@@ -95,7 +95,11 @@ class PitchConfig:
     # 230 seen level with the forks), the 10 with both edges at 243 or more were 0.04-0.23 deg off in pitch, 4 of
     # them outside the 0.1 deg bound (campaign seed 7 pick 38: -0.146), while the next brightest (236) was within
     # 0.052; campaign seed 4242 pick 22 rendered without its JPEG step was 0.047 deg off instead of 0.194, at 0.7 of
-    # its exposure 0.029. Lowering the camera's exposure keeps the deck's edges off the clipped highlights.
+    # its exposure 0.029. Lowering the camera's exposure keeps the deck's edges off the clipped highlights. Since
+    # session 34 the highlight is the brightest colour channel's (grey where no colour frame is given): one clipped
+    # channel does the same (a red deck at R 252-255 beside both edges, grey 170-200), and behind a JPEG no other
+    # channel finds the edge again. On the 294 frames of 145 campaign picks (seed 7) it refused 8 measurements 0.1-0.34
+    # deg off and 9 within the bounds; campaign picks 660, 707, 735, 858 and 930 accept none outside them now.
     max_deck_highlight: float = 240.0
     # A load hides the top deck's side edges: where the loaded hypothesis is taken, the unloaded one found them over
     # at most 26 % of their length on 62 right loaded measurements (random looks, campaign first frames). Rack
@@ -158,8 +162,9 @@ class PitchEvidence:
         the pose may be searched again, as the edges are searched around the pitch they are predicted at;
         never a measurement (NaN otherwise).
     highlights : tuple of float
-        Each edge's median highlight (:func:`edge_highlights`): the brightest grey level (0-255) within a few pixels
-        of its points along their rows (NaN for an edge not found).
+        Each edge's median highlight (:func:`edge_highlights`): the brightest level (0-255) within a few pixels
+        of its points along their rows, of the brightest colour channel where the colour frame was given, else of the
+        grey (NaN for an edge not found).
     """
 
     hypothesis: str
@@ -204,7 +209,7 @@ def unloaded_evidence(
         note = (f"the deck edges give the pitch only to +-{math.degrees(pair.sigma):.2f} deg (at most "
                 f"{math.degrees(config.edge_max_sigma):.3f}): their points wander off the lines")
     elif min(pair.highlights) >= config.max_deck_highlight:
-        note = (f"the top deck is overexposed beside both its edges (grey {pair.highlights[0]:.0f} and "
+        note = (f"the top deck is overexposed beside both its edges (brightest channel {pair.highlights[0]:.0f} and "
                 f"{pair.highlights[1]:.0f} of 255; below {config.max_deck_highlight:.0f} on one side at least): "
                 "clipped highlights move the edges' lines; lower the camera's exposure")
     else:
@@ -1097,7 +1102,11 @@ def _edge_points(
         columns, rows, c, needed = columns[kept], rows[kept], c[kept], needed[kept]
     directions = np.full((len(rows), 3), np.nan)
     directions[needed] = panorama.directions_from_pixels(np.stack([columns[needed], rows[needed]], axis=1))
-    return directions, c > threshold, columns, rows, edge_highlights(image, columns, rows, needed)
+    # The highlight is the brightest channel's: one clipped channel moves the grey's gradient maxima outwards as a
+    # clipped grey does (a red deck at R 255, grey 170-200, its edges' maxima 0.5-0.8 px outside the outline), and
+    # behind a JPEG no channel finds the edge again (unclipped_edge_columns): its fine detail is the luma's
+    brightest = image if colour is None else colour.max(axis=2).astype(np.float32)
+    return directions, c > threshold, columns, rows, edge_highlights(brightest, columns, rows, needed)
 
 
 HIGHLIGHT_REACH = 4  # panorama pixels either side of an edge point along its row
