@@ -1105,19 +1105,21 @@ def _edge_points(
     # The highlight is the brightest channel's: one clipped channel moves the grey's gradient maxima outwards as a
     # clipped grey does (a red deck at R 255, grey 170-200, its edges' maxima 0.5-0.8 px outside the outline), and
     # behind a JPEG no channel finds the edge again (unclipped_edge_columns): its fine detail is the luma's
-    brightest = image if colour is None else colour.max(axis=2).astype(np.float32)
-    return directions, c > threshold, columns, rows, edge_highlights(brightest, columns, rows, needed)
+    highlights = edge_highlights(image if colour is None else colour, columns, rows, needed)
+    return directions, c > threshold, columns, rows, highlights
 
 
 HIGHLIGHT_REACH = 4  # panorama pixels either side of an edge point along its row
 
 
-def edge_highlights(image: NDArray[np.float32], columns: Array, rows: Array, needed: NDArray[np.bool_]) -> Array:
-    """The brightest grey level of ``image`` within :data:`HIGHLIGHT_REACH` pixels of each ``needed`` edge point
-    along its row (N,), NaN for the others."""
+def edge_highlights(image: NDArray, columns: Array, rows: Array, needed: NDArray[np.bool_]) -> Array:
+    """The brightest level of ``image`` (grey (H, W), or colour (H, W, 3): its brightest channel) within
+    :data:`HIGHLIGHT_REACH` pixels of each ``needed`` edge point along its row (N,), NaN for the others. Only the
+    points' windows are read: the channels' maximum over a whole panorama cost a pass a call."""
     out = np.full(len(rows), np.nan)
     window = _row_windows(columns[needed], HIGHLIGHT_REACH, image.shape[1])
-    out[needed] = image[rows[needed].astype(int)[:, None], window].max(axis=1)
+    levels = image[rows[needed].astype(int)[:, None], window]  # (n, W) or (n, W, 3)
+    out[needed] = levels.max(axis=tuple(range(1, levels.ndim)))
     return out
 
 

@@ -241,6 +241,18 @@ def test_an_edge_point_reads_the_brightest_grey_within_reach_along_its_row_only(
     assert np.isnan(highlights[4])
 
 
+
+def test_an_edge_point_in_colour_reads_the_brightest_channel_within_reach():
+    """Campaign seed 7 picks 660-930: a deck clipped in red only (grey 170-200) moved its edges as a clipped grey
+    does; in a colour frame the highlight is the brightest channel's, so the deck counts as overexposed."""
+    image = np.full((3, 40, 3), 100, np.uint8)
+    image[1, 20:] = (90, 150, 252)  # B, G, R: red nearly clipped right of column 20, middle row only
+    columns = np.array([19.6, 19.6, 20.0 - HIGHLIGHT_REACH - 1.0])
+    rows = np.array([1.0, 0.0, 1.0])
+    highlights = edge_highlights(image, columns, rows, np.ones(3, bool))
+    np.testing.assert_array_equal(highlights, [252.0, 100.0, 100.0])
+    np.testing.assert_array_equal(edge_highlights(image, columns, rows, np.zeros(3, bool)), [np.nan] * 3)
+
 def test_no_load_top_is_searched_where_the_camera_is_not_above_the_lowest_one():
     """A camera 0.3 m over the deck cannot look down on a load top at least PitchConfig.top_lowest above it."""
     from agf.camera import load_camera
