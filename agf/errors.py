@@ -57,6 +57,13 @@ class PalletHiddenError(MeasurementError):
         super().__init__(message, found, pallet_in_fork)
 
 
+class OverexposedError(MeasurementError):
+    """Clipped highlights where the vision reads its edges made it refuse: the same view with a shorter
+    exposure may measure, so the controller may ask the camera for one (:meth:`agf.frames.FrameSource.set_exposure`)
+    and measure again.
+    """
+
+
 class NotAvailableError(AgfError):
     """A capability that has not been built yet, or hardware that is not present."""
 

@@ -14,7 +14,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from agf.errors import AgfError
+from agf.errors import AgfError, NotAvailableError
 
 
 class FrameLost(AgfError):
@@ -64,8 +64,12 @@ class Frame:
 class FrameSource(ABC):
     """A source of fisheye frames of one camera model's size."""
 
+    # The exposure a source may be set to, as a multiple of its configured one.
+    EXPOSURE_RANGE = (0.05, 1.0)
+
     def __init__(self, width: int, height: int) -> None:
         self.width, self.height = width, height
+        self.exposure = 1.0  # a multiple of the configured exposure
         self._count = 0
 
     def read(self, timeout: float = 1.0) -> Frame:
@@ -86,8 +90,29 @@ class FrameSource(ABC):
         self._count += 1
         return Frame(image, time.monotonic(), self._count, jpeg)
 
+    def set_exposure(self, scale: float) -> None:
+        """Expose the next frames ``scale`` times as long as configured (1: as configured; shorter only, in
+        ``EXPOSURE_RANGE``): clipped highlights where the vision reads its edges are measured again darker.
+
+        Raises
+        ------
+        ValueError
+            If ``scale`` is outside ``EXPOSURE_RANGE``.
+        NotAvailableError
+            If the source cannot change its exposure (a file, a replay).
+        """
+        low, high = self.EXPOSURE_RANGE
+        if not low <= scale <= high:
+            raise ValueError(f"exposure scale: expected {low}..{high} (a multiple of the configured one), got {scale}")
+        self._set_exposure(scale)
+        self.exposure = scale
+
     def describe(self) -> str:
         return type(self).__name__
+
+    def _set_exposure(self, scale: float) -> None:
+        """Back ends that can change their exposure override this (see :meth:`set_exposure`)."""
+        raise NotAvailableError(f"{self.describe()} cannot change its exposure")
 
     def close(self) -> None:  # noqa: B027 - optional hook: files and simulations hold nothing
         """Release the device or file."""

@@ -43,6 +43,7 @@ OPTIONAL = {
     "log": (str, type(None)),
     "viewing_moves": int,
     "withdrawals": int,
+    "exposure_changes": int,
 }
 COLOURS = {"inserted": "tab:green", "refused": "tab:orange", "faulted": "tab:purple", "collided": "tab:red"}
 
@@ -117,6 +118,7 @@ def campaign_figures(results: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
         "collisions": sum(r["collision"] for r in results),
         "viewing_moves": sum(r.get("viewing_moves", 0) for r in results),
         "withdrawals": sum(r.get("withdrawals", 0) for r in results),
+        "exposure_changes": sum(r.get("exposure_changes", 0) for r in results),
         "measurements_outside_bounds": sum(not within_bounds(e["error"]) for e in measurement_errors(results)),
         "min_clearance_mm": min(clearances) if clearances else None,
         "median_cycle_s": statistics.median(cycles) if cycles else None,
@@ -283,6 +285,13 @@ def _markdown(folder: Path, meta: Mapping[str, Any], results: list[dict[str, Any
         lines += [
             f"Picks whose verifying measurement was refused, so that the forks withdrew along their insertion line "
             f"to measure again: {len(withdrawn)}, of which {sum(r['ok'] for r in withdrawn)} inserted.",
+            "",
+        ]
+    if any("exposure_changes" in r for r in results):
+        darker = [r for r in results if r.get("exposure_changes", 0) > 0]
+        lines += [
+            f"Picks measured again with a shorter exposure (clipped highlights beside the deck's edges): "
+            f"{len(darker)}, of which {sum(r['ok'] for r in darker)} inserted.",
             "",
         ]
     failed = [r for r in results if not r["ok"]]

@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 
 from agf.camera import CameraModel
 from agf.config import ForkGeometry, SearchVolume
-from agf.errors import OTHER_SEARCHES, MeasurementError, PalletHiddenError
+from agf.errors import OTHER_SEARCHES, MeasurementError, OverexposedError, PalletHiddenError
 from agf.geometry import Transform
 from agf.measurement import PalletMeasurement
 from agf.pallets import PalletType
@@ -470,7 +470,8 @@ def _refusal(
     """One error for the failed searches, carrying what the vision ``found``: the first one's reason,
     the others' after it, and ``rough``, the first search's pose if the image confirms it. When the forks hid
     the pallet in any of them, a :class:`PalletHiddenError` with that search's rough pose, as moving the forks
-    out of the view may then give a measurement."""
+    out of the view may then give a measurement; else, when clipped highlights refused any of them, an
+    :class:`OverexposedError`, as a shorter exposure may."""
     reasons = [str(f) for f in failures]
     others = sorted(set(reasons[1:]) - {reasons[0]})
     also = (f"{OTHER_SEARCHES}+-{math.degrees(volume.pitch_max / 2):.1f} deg and by "
@@ -478,7 +479,8 @@ def _refusal(
     message = reasons[0] + (also + ": " + "; ".join(others) + ")" if others else "")
     hidden = next((f for f in failures if isinstance(f, PalletHiddenError)), None)
     if hidden is None:
-        return MeasurementError(message, found=found, pallet_in_fork=rough)
+        overexposed = any(isinstance(f, OverexposedError) for f in failures)
+        return (OverexposedError if overexposed else MeasurementError)(message, found=found, pallet_in_fork=rough)
     return PalletHiddenError(message, hidden.pallet_in_fork, found=found)
 
 
@@ -516,7 +518,8 @@ def _choose(evidence: dict[str, PitchEvidence], config: PitchConfig) -> PitchEvi
         return evidence["loaded"]
     noted = [e.note for e in evidence.values() if e.note]
     if noted:
-        raise MeasurementError(f"no trustworthy pitch: {'; '.join(noted)}; refusing rather than guessing")
+        error = OverexposedError if evidence["unloaded"].overexposed else MeasurementError
+        raise error(f"no trustworthy pitch: {'; '.join(noted)}; refusing rather than guessing")
     ambiguous = [name for name, e in evidence.items() if e.ambiguous]
     if ambiguous:
         raise MeasurementError(

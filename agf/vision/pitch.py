@@ -165,6 +165,8 @@ class PitchEvidence:
         Each edge's median highlight (:func:`edge_highlights`): the brightest level (0-255) within a few pixels
         of its points along their rows, of the brightest colour channel where the colour frame was given, else of the
         grey (NaN for an edge not found).
+    overexposed : bool
+        Not valid because the highlights beside both edges are clipped: a shorter exposure may find the edges.
     """
 
     hypothesis: str
@@ -183,6 +185,7 @@ class PitchEvidence:
     note: str = ""
     lead: float = math.nan
     highlights: tuple[float, ...] = ()
+    overexposed: bool = False
 
 
 def unloaded_evidence(
@@ -212,6 +215,7 @@ def unloaded_evidence(
         note = (f"the top deck is overexposed beside both its edges (brightest channel {pair.highlights[0]:.0f} and "
                 f"{pair.highlights[1]:.0f} of 255; below {config.max_deck_highlight:.0f} on one side at least): "
                 "clipped highlights move the edges' lines; lower the camera's exposure")
+        return dataclasses.replace(_refused(pair, note), overexposed=True)
     else:
         return pair
     return _refused(pair, note)

@@ -64,12 +64,17 @@ class RenderedCamera(FrameSource):
     def describe(self) -> str:
         return "simulated camera"
 
+    def _set_exposure(self, scale: float) -> None:
+        pass  # the next frames are rendered with the scene's light scaled (see _read)
+
     def _read(self, timeout: float) -> np.ndarray | JpegImage | None:
         if self.world.frames_lost:
             self.world.frames_lost -= 1
             return None
         scene = self.world.scene_now()
-        sent = camera_output(scene, self.world.camera)
+        # an Environment holds light 0.05 at least: a dimmer one is not a scene the renderer draws differently
+        exposed = dataclasses.replace(scene.environment, light=max(scene.environment.light * self.exposure, 0.05))
+        sent = camera_output(dataclasses.replace(scene, environment=exposed), self.world.camera)
         self.world.frame_truths.append(scene.pallet.in_fork)
         return sent
 
@@ -296,6 +301,7 @@ def pick_summary(result: PickResult, world: SimulatedWorld) -> dict[str, Any]:
         "wall_s": sum(result.wall_durations.values()),
         "viewing_moves": len(result.views),
         "withdrawals": len(result.withdrawals),
+        "exposure_changes": len(result.exposures),
         "durations_s": result.durations,
         "measured": [m.pallet_in_fork.to_dict() for m in result.measurements],
         "truth": [t.to_dict() for t in world.measured_truths[: len(result.measurements)]],
