@@ -101,6 +101,13 @@ class PitchConfig:
     # channel finds the edge again. On the 294 frames of 145 campaign picks (seed 7) it refused 8 measurements 0.1-0.34
     # deg off and 9 within the bounds; campaign picks 660, 707, 735, 858 and 930 accept none outside them now.
     max_deck_highlight: float = 240.0
+    # ... nor one with this share of either edge's points beside a clipped channel (CLIPPED), bright as the other
+    # edge may be: at the true poses of 303 unloaded frames (campaign seed 7's first 400 first frames, and its 76
+    # picks refused for an overexposed deck rendered again at 0.6 and 0.36 of their light), the rule above flagged 11
+    # of the 31 pitches outside the 0.1 deg bound, this one 4 more (one edge clipped: pick 163 +0.40 deg, 398 -0.33,
+    # 31 -0.11; pick 360 at 0.6 of its light -0.15 with 36 % of an edge clipped, medians 227 and 218) and 21 more of
+    # the 272 within it. Since session 35 the controller answers both with a shorter exposure, not a refused pick.
+    max_deck_clipped: float = 0.2
     # A load hides the top deck's side edges: where the loaded hypothesis is taken, the unloaded one found them over
     # at most 26 % of their length on 62 right loaded measurements (random looks, campaign first frames). Rack
     # uprights behind an unloaded pallet, taken for a load's edges with the deck's edges found over 42 %, gave the
@@ -165,8 +172,10 @@ class PitchEvidence:
         Each edge's median highlight (:func:`edge_highlights`): the brightest level (0-255) within a few pixels
         of its points along their rows, of the brightest colour channel where the colour frame was given, else of the
         grey (NaN for an edge not found).
+    clipped : tuple of float
+        Each edge's share of points whose highlight is clipped (:data:`CLIPPED` or more; NaN for an edge not found).
     overexposed : bool
-        Not valid because the highlights beside both edges are clipped: a shorter exposure may find the edges.
+        Not valid because the highlights beside the edges are clipped: a shorter exposure may find the edges.
     """
 
     hypothesis: str
@@ -185,6 +194,7 @@ class PitchEvidence:
     note: str = ""
     lead: float = math.nan
     highlights: tuple[float, ...] = ()
+    clipped: tuple[float, ...] = ()
     overexposed: bool = False
 
 
@@ -211,10 +221,11 @@ def unloaded_evidence(
     if pair.sigma > config.edge_max_sigma:
         note = (f"the deck edges give the pitch only to +-{math.degrees(pair.sigma):.2f} deg (at most "
                 f"{math.degrees(config.edge_max_sigma):.3f}): their points wander off the lines")
-    elif min(pair.highlights) >= config.max_deck_highlight:
-        note = (f"the top deck is overexposed beside both its edges (brightest channel {pair.highlights[0]:.0f} and "
-                f"{pair.highlights[1]:.0f} of 255; below {config.max_deck_highlight:.0f} on one side at least): "
-                "clipped highlights move the edges' lines; lower the camera's exposure")
+    elif min(pair.highlights) >= config.max_deck_highlight or max(pair.clipped) >= config.max_deck_clipped:
+        note = (f"the top deck is overexposed beside its edges (brightest channel {pair.highlights[0]:.0f} and "
+                f"{pair.highlights[1]:.0f} of 255, below {config.max_deck_highlight:.0f} on one side at least; "
+                f"{pair.clipped[0]:.0%} and {pair.clipped[1]:.0%} of their points clipped, at most "
+                f"{config.max_deck_clipped:.0%}): clipped highlights move the edges' lines; lower the camera's exposure")
         return dataclasses.replace(_refused(pair, note), overexposed=True)
     else:
         return pair
@@ -789,7 +800,7 @@ class _Search:
 class _Edge(NamedTuple):
     """One edge of a pair (:func:`_edge`): its line (the fit along the reach where there was one), a rival line
     beside it that the anchor does not rule out, its tilt (:func:`tilt_sigma`), its support ratio, the median
-    highlight beside its points (:func:`edge_highlights`), and whether the anchor ``pinned`` the line among others
+    highlight beside its points (:func:`edge_highlights`) and their share clipped, and whether the anchor ``pinned`` the line among others
     (:func:`_line_through`, or a rival through the anchor; the stronger line is then the rival, which the pitch must
     agree with)."""
 
@@ -798,6 +809,7 @@ class _Edge(NamedTuple):
     tilt: tuple[Array, float] | None
     ratio: float
     highlight: float
+    clipped: float
     pinned: bool = False
 
 
@@ -816,7 +828,7 @@ def _edge(search: _Search, segment: Array, far: Array, region: Array, reach_regi
     ones = np.ones(len(fitted))
     line = _line(panorama, fitted, ones, lon, config)
     if line is None:
-        return _Edge(None, None, None, 0.0, math.nan)
+        return _Edge(None, None, None, 0.0, math.nan, math.nan)
     rival = _rival_nearby(panorama, fitted, ones, line, lon, config)
     anchor = _unit(segment[:1])[0] if search.anchored else None
     pinned = False
@@ -835,8 +847,9 @@ def _edge(search: _Search, segment: Array, far: Array, region: Array, reach_regi
                       fit.normal if fit is not None else line.normal)
     length = max(region[3] - region[2], 1.0)
     ratio = min(_support(line, corrected, rows[inside], panorama, config) / length, 1.0)
-    highlight = float(np.median(highlights[inside][strong[inside]][line.inliers]))
-    return _Edge(fit if fit is not None else line, rival, tilt, ratio, highlight, pinned)
+    beside = highlights[inside][strong[inside]][line.inliers]
+    return _Edge(fit if fit is not None else line, rival, tilt, ratio, float(np.median(beside)),
+                 float(np.mean(beside >= CLIPPED)), pinned)
 
 
 def _pair_evidence(
@@ -851,7 +864,7 @@ def _pair_evidence(
     nan = np.full(3, np.nan)
     found = functools.partial(PitchEvidence, search.hypothesis, ratio, panorama=search.panorama, regions=regions,
                               lines=lines, face_points=search.face_points,
-                              highlights=tuple(e.highlight for e in edges))
+                              highlights=tuple(e.highlight for e in edges), clipped=tuple(e.clipped for e in edges))
     if len(lines) < 2 or ratio < config.min_ratio:
         return found(False, math.nan, nan)
     pitches = []
