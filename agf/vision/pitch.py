@@ -225,7 +225,8 @@ def unloaded_evidence(
         note = (f"the top deck is overexposed beside its edges (brightest channel {pair.highlights[0]:.0f} and "
                 f"{pair.highlights[1]:.0f} of 255, below {config.max_deck_highlight:.0f} on one side at least; "
                 f"{pair.clipped[0]:.0%} and {pair.clipped[1]:.0%} of their points clipped, at most "
-                f"{config.max_deck_clipped:.0%}): clipped highlights move the edges' lines; lower the camera's exposure")
+                f"{config.max_deck_clipped:.0%}): clipped highlights move the edges' lines; lower the camera's "
+                "exposure")
         return dataclasses.replace(_refused(pair, note), overexposed=True)
     else:
         return pair
@@ -800,9 +801,9 @@ class _Search:
 class _Edge(NamedTuple):
     """One edge of a pair (:func:`_edge`): its line (the fit along the reach where there was one), a rival line
     beside it that the anchor does not rule out, its tilt (:func:`tilt_sigma`), its support ratio, the median
-    highlight beside its points (:func:`edge_highlights`) and their share clipped, and whether the anchor ``pinned`` the line among others
-    (:func:`_line_through`, or a rival through the anchor; the stronger line is then the rival, which the pitch must
-    agree with)."""
+    highlight beside its points (:func:`edge_highlights`) and their share clipped, and whether the anchor ``pinned``
+    the line among others (:func:`_line_through`, or a rival through the anchor; the stronger line is then the rival,
+    which the pitch must agree with)."""
 
     line: SphereLine | None
     rival: SphereLine | None
