@@ -69,6 +69,7 @@ class Video(FrameSource):
     ) -> None:
         super().__init__(width, height)
         self.source, self.lens = source, lens
+        self._configured_exposure: float | None = None  # read at the first change (see _set_exposure)
         self.capture = cv2.VideoCapture(source)
         if not self.capture.isOpened():
             raise NotAvailableError(f"video source {source!r} cannot be opened (no such file or device)")
@@ -78,6 +79,17 @@ class Video(FrameSource):
 
     def describe(self) -> str:
         return f"video {self.source}"
+
+    def _set_exposure(self, scale: float) -> None:
+        """The device's exposure (``CAP_PROP_EXPOSURE``, in the driver's units) at ``scale`` times the one it had
+        at the first change: the one commissioning set. Its auto exposure must be off for this to act."""
+        if self._configured_exposure is None:
+            self._configured_exposure = float(self.capture.get(cv2.CAP_PROP_EXPOSURE))
+        if self._configured_exposure <= 0 or not self.capture.set(
+            cv2.CAP_PROP_EXPOSURE, self._configured_exposure * scale
+        ):
+            raise NotAvailableError(f"{self.describe()} cannot change its exposure (CAP_PROP_EXPOSURE "
+                                    f"{self._configured_exposure:g}; a file, or a device in auto exposure)")
 
     def _read(self, timeout: float) -> NDArray[np.uint8] | None:
         ok, image = self.capture.read()

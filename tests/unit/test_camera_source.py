@@ -53,6 +53,54 @@ def test_video_file_frames(tmp_path):
     source.close()
 
 
+def test_a_video_file_cannot_change_its_exposure(tmp_path):
+    path = tmp_path / "pick.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, (64, 48))
+    writer.write(frame(100))
+    writer.release()
+    source = Video(str(path), 64, 48)
+    with pytest.raises(NotAvailableError, match="cannot change its exposure"):
+        source.set_exposure(0.6)
+    assert source.exposure == 1.0
+    source.close()
+
+
+class ExposureDevice:
+    """Stands in for a V4L2 device's capture (none on this machine): its CAP_PROP_EXPOSURE, set or refused."""
+
+    def __init__(self, exposure: float, settable: bool = True) -> None:
+        self.exposure, self.settable, self.written = exposure, settable, []
+
+    def get(self, prop):
+        assert prop == cv2.CAP_PROP_EXPOSURE
+        return self.exposure
+
+    def set(self, prop, value):
+        self.written.append((prop, value))
+        if self.settable:
+            self.exposure = value
+        return self.settable
+
+
+def test_a_video_device_sets_its_exposure_as_a_multiple_of_the_commissioned_one_and_back(tmp_path):
+    path = tmp_path / "pick.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, (64, 48))
+    writer.write(frame(100))
+    writer.release()
+    source = Video(str(path), 64, 48)
+    source.capture.release()
+    source.capture = ExposureDevice(250.0)
+    source.set_exposure(0.6)
+    source.set_exposure(0.36)
+    source.set_exposure(1.0)
+    assert source.capture.written == [(cv2.CAP_PROP_EXPOSURE, pytest.approx(v)) for v in (150.0, 90.0, 250.0)]
+    assert source.exposure == 1.0
+    source.capture = ExposureDevice(250.0, settable=False)
+    source._configured_exposure = None
+    with pytest.raises(NotAvailableError, match=r"CAP_PROP_EXPOSURE 250"):
+        source.set_exposure(0.6)
+
+
 def test_missing_video_device_is_not_available():
     with pytest.raises(NotAvailableError, match="cannot be opened"):
         Video("/nonexistent/video.mp4", 64, 48)
