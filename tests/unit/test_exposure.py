@@ -88,6 +88,18 @@ def test_a_clipped_verifying_frame_is_read_again_darker_in_place_without_withdra
     assert camera.exposure == 1.0 and axis.position == 0.2
 
 
+def test_a_camera_that_fails_to_set_its_exposure_back_leaves_the_pick_as_it_ended():
+    class Stuck(ExposedCamera):
+        def _set_exposure(self, scale: float) -> None:
+            if scale == 1.0:
+                raise NotAvailableError("the device stopped answering")
+
+    camera, measured = Stuck(4, 4), []
+    result, axis = run(camera, clipped_above(150, measured))
+    assert result.ok, result.reason
+    assert camera.exposure == pytest.approx(0.6) and axis.position == 0.2
+
+
 @pytest.mark.parametrize("step", [0.0, 1.0, 1.5])
 def test_an_exposure_step_that_does_not_shorten_is_a_value_error(step):
     with pytest.raises(ValueError, match="exposure_step"):
