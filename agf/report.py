@@ -48,6 +48,15 @@ OPTIONAL = {
 COLOURS = {"inserted": "tab:green", "refused": "tab:orange", "faulted": "tab:purple", "collided": "tab:red"}
 
 
+def _measured_again(results: list[dict[str, Any]], key: str, what: str) -> list[str]:
+    """The report's line on the picks whose ``key`` count is positive, ``what`` they are, and how many inserted
+    (none where no result has the key: a campaign from before it was counted)."""
+    if not any(key in r for r in results):
+        return []
+    again = [r for r in results if r.get(key, 0) > 0]
+    return [f"{what}: {len(again)}, of which {sum(r['ok'] for r in again)} inserted.", ""]
+
+
 def validate_result(record: Any, where: str) -> dict[str, Any]:
     """One line of ``results.jsonl`` checked for the keys the report reads; InputError names what is wrong."""
     if not isinstance(record, dict):
@@ -280,20 +289,10 @@ def _markdown(folder: Path, meta: Mapping[str, Any], results: list[dict[str, Any
             f"with {figures['viewing_moves']} moves in all.",
             "",
         ]
-    if any("withdrawals" in r for r in results):
-        withdrawn = [r for r in results if r.get("withdrawals", 0) > 0]
-        lines += [
-            f"Picks whose verifying measurement was refused, so that the forks withdrew along their insertion line "
-            f"to measure again: {len(withdrawn)}, of which {sum(r['ok'] for r in withdrawn)} inserted.",
-            "",
-        ]
-    if any("exposure_changes" in r for r in results):
-        darker = [r for r in results if r.get("exposure_changes", 0) > 0]
-        lines += [
-            f"Picks measured again with a shorter exposure (clipped highlights beside the deck's edges): "
-            f"{len(darker)}, of which {sum(r['ok'] for r in darker)} inserted.",
-            "",
-        ]
+    lines += _measured_again(results, "withdrawals", "Picks whose verifying measurement was refused, so that the "
+                             "forks withdrew along their insertion line to measure again")
+    lines += _measured_again(results, "exposure_changes", "Picks measured again with a shorter exposure (clipped "
+                             "highlights beside the deck's edges)")
     failed = [r for r in results if not r["ok"]]
     for outcome in ("refused", "faulted", "collided"):
         reasons = Counter(reason_class(r.get("reason")) for r in failed if r["outcome"] == outcome)

@@ -53,12 +53,16 @@ def test_video_file_frames(tmp_path):
     source.close()
 
 
-def test_a_video_file_cannot_change_its_exposure(tmp_path):
+def one_frame_video(tmp_path) -> Video:
     path = tmp_path / "pick.avi"
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, (64, 48))
     writer.write(frame(100))
     writer.release()
-    source = Video(str(path), 64, 48)
+    return Video(str(path), 64, 48)
+
+
+def test_a_video_file_cannot_change_its_exposure(tmp_path):
+    source = one_frame_video(tmp_path)
     with pytest.raises(NotAvailableError, match="cannot change its exposure"):
         source.set_exposure(0.6)
     assert source.exposure == 1.0
@@ -83,11 +87,7 @@ class ExposureDevice:
 
 
 def test_a_video_device_sets_its_exposure_as_a_multiple_of_the_commissioned_one_and_back(tmp_path):
-    path = tmp_path / "pick.avi"
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, (64, 48))
-    writer.write(frame(100))
-    writer.release()
-    source = Video(str(path), 64, 48)
+    source = one_frame_video(tmp_path)
     source.capture.release()
     source.capture = ExposureDevice(250.0)
     source.set_exposure(0.6)

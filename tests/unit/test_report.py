@@ -67,6 +67,10 @@ def test_the_report_counts_outcomes_and_tables_reasons(folder):
     withdrawn = [r for r in records if r["withdrawals"] > 0]
     assert f"to measure again: {len(withdrawn)}, of which {sum(r['ok'] for r in withdrawn)} inserted." in markdown
     assert result["withdrawals"] == len(withdrawn) > 0
+    darker = [r for r in records if r["exposure_changes"] > 0]
+    assert f"(clipped highlights beside the deck's edges): {len(darker)}, of which {sum(r['ok'] for r in darker)} " \
+        "inserted." in markdown
+    assert result["exposure_changes"] == len(darker) > 0
     failures = table_rows(markdown, "Failures")
     assert sorted(int(row[0]) for row in failures) == [r["run"] for r in records if not r["ok"]]
 
