@@ -318,8 +318,9 @@ def test_regression_campaign_picks_of_seed_7_a_deck_clipped_in_one_channel_gives
 # 735, 858 and 930 (test_regression_campaign_picks_of_seed_7_a_deck_clipped_in_one_channel_gives_no_pitch).
 # Pick 764 joined in session 35: refused for an overexposed deck before, it is measured again at 0.6 of its exposure
 # and accepted 0.12 deg off (0.11-0.12 at the true pose at 0.6 and 0.36 of its light: not the exposure's doing).
+# Pick 948 left it the same session (test_regression_campaign_picks_of_seed_7_a_deck_edge_clipped_in_part_gives_...).
 OPEN_CAMPAIGN_WRONG_ACCEPTS = (
-    8, 55, 122, 221, 336, 413, 474, 480, 488, 554, 580, 632, 674, 723, 729, 762, 764, 791, 808, 948, 993,
+    8, 55, 122, 221, 336, 413, 474, 480, 488, 554, 580, 632, 674, 723, 729, 762, 764, 791, 808, 993,
 )
 
 
@@ -353,13 +354,15 @@ def test_regression_campaign_pick_38_of_seed_7_an_overexposed_deck_gives_no_pitc
     assert_no_measurement_outside_bounds(7, 38)
 
 
-def test_regression_campaign_pick_360_of_seed_7_a_deck_edge_clipped_in_part_gives_no_pitch():
+@pytest.mark.parametrize("index", (360, 948))
+def test_regression_campaign_picks_of_seed_7_a_deck_edge_clipped_in_part_gives_no_pitch(index):
     """Refused for an overexposed deck until session 35, pick 360 was measured again at 0.6 of its exposure and
     accepted 0.15 deg off in pitch, and inserted: its deck edges' median highlights were 227 and 218, under the
     overexposure check's 240, but 36 % of one edge's points were beside a clipped channel. A deck with a fifth of
     either edge clipped now gives no pitch (PitchConfig.max_deck_clipped), and the controller shortens the exposure
-    once more."""
-    assert_no_measurement_outside_bounds(7, 360)
+    once more. Pick 948 (an open wrong accept since session 31) inserts within the bounds so, after two shorter
+    exposures."""
+    assert_no_measurement_outside_bounds(7, index)
 
 
 @pytest.mark.parametrize("index", (52, 177))
