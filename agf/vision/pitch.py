@@ -227,7 +227,7 @@ def unloaded_evidence(
                 f"{pair.clipped[0]:.0%} and {pair.clipped[1]:.0%} of their points clipped, at most "
                 f"{config.max_deck_clipped:.0%}): clipped highlights move the edges' lines; lower the camera's "
                 "exposure")
-        return dataclasses.replace(_refused(pair, note), overexposed=True)
+        return _refused(pair, note, overexposed=True)
     else:
         return pair
     return _refused(pair, note)
@@ -373,10 +373,11 @@ def _edges_against_face(candidates: Sequence[float], face: FaceDirection) -> str
             f"the {face.lines} lines on its face {math.degrees(face.pitch):.2f} deg")
 
 
-def _refused(evidence: PitchEvidence, note: str, lead: float = math.nan) -> PitchEvidence:
-    """``evidence`` made invalid for ``note``, with the pitch (rad) the face leads to, if any."""
+def _refused(evidence: PitchEvidence, note: str, lead: float = math.nan, overexposed: bool = False) -> PitchEvidence:
+    """``evidence`` made invalid for ``note``, with the pitch (rad) the face leads to, if any, and whether clipped
+    highlights are why."""
     return dataclasses.replace(evidence, valid=False, pitch=math.nan, direction=np.full(3, np.nan), ambiguous=False,
-                               note=note, lead=lead)
+                               note=note, lead=lead, overexposed=overexposed)
 
 
 def _checked_by_wide_face(

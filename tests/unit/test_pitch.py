@@ -241,7 +241,6 @@ def test_an_edge_point_reads_the_brightest_grey_within_reach_along_its_row_only(
     assert np.isnan(highlights[4])
 
 
-
 def test_an_edge_point_in_colour_reads_the_brightest_channel_within_reach():
     """Campaign seed 7 picks 660-930: a deck clipped in red only (grey 170-200) moved its edges as a clipped grey
     does; in a colour frame the highlight is the brightest channel's, so the deck counts as overexposed."""
@@ -252,6 +251,7 @@ def test_an_edge_point_in_colour_reads_the_brightest_channel_within_reach():
     highlights = edge_highlights(image, columns, rows, np.ones(3, bool))
     np.testing.assert_array_equal(highlights, [252.0, 100.0, 100.0])
     np.testing.assert_array_equal(edge_highlights(image, columns, rows, np.zeros(3, bool)), [np.nan] * 3)
+
 
 def test_no_load_top_is_searched_where_the_camera_is_not_above_the_lowest_one():
     """A camera 0.3 m over the deck cannot look down on a load top at least PitchConfig.top_lowest above it."""
