@@ -139,8 +139,7 @@ def check_face_edges(
     degree in yaw) explains them better, or its upright edges, which fix its size, do not agree by themselves.
     The error carries the pose's own :class:`EdgeAgreement` in ``found``."""
     pivot = np.array([0.0, 0.0, (face.z_bottom + face.z_top) / 2])  # the face's centre, pallet frame
-    centre = pallet_in_fork.apply(pivot)
-    sight = (centre - camera_in_fork.translation) / np.linalg.norm(centre - camera_in_fork.translation)
+    sight = line_of_sight(pallet_in_fork, camera_in_fork, face)
     moves = [pallet_in_fork.apply_direction(np.array([0.0, dy, dz])) for dy, dz in config.shifts]
     moves += [d * sight for d in config.depth_shifts]
     shifted = [Transform(pallet_in_fork.rotation, pallet_in_fork.translation + move) for move in moves]
@@ -170,6 +169,13 @@ def check_face_edges(
             "refusing rather than guessing", found=own,
         )
     return own
+
+
+def line_of_sight(pallet_in_fork: Transform, camera_in_fork: Transform, face: FaceModel) -> NDArray[np.float64]:
+    """The unit direction (3,) in the fork frame from the camera to the centre of the face at ``pallet_in_fork``:
+    along it, the face's distance is its size in the image."""
+    centre = pallet_in_fork.apply(np.array([0.0, 0.0, (face.z_bottom + face.z_top) / 2]))
+    return (centre - camera_in_fork.translation) / np.linalg.norm(centre - camera_in_fork.translation)
 
 
 def _parallel_gaps(points: NDArray, normals: NDArray, lateral: float) -> NDArray:

@@ -19,7 +19,7 @@ from agf.geometry import Transform, transform_from_dict
 from agf.pallets import load_pallets
 from agf.paths import DEFAULT_CONFIG
 from agf.scene import load_scene
-from agf.vision.edge_agreement import check_face_edges, face_edge_agreement
+from agf.vision.edge_agreement import check_face_edges, face_edge_agreement, line_of_sight
 from agf.vision.face_model import face_model_from_pallet
 from agf.vision.grey import grey_from_bgr
 from agf.vision.measure import measure_pallet
@@ -60,9 +60,7 @@ def test_pose_a_deck_board_off_is_refused(rendered, dz):
 
 
 def _along_sight(T: Transform, camera_in_fork: Transform, face, distance: float) -> Transform:
-    centre = T.apply(np.array([0.0, 0.0, (face.z_bottom + face.z_top) / 2]))
-    sight = centre - camera_in_fork.translation
-    return Transform(T.rotation, T.translation + distance * sight / np.linalg.norm(sight))
+    return Transform(T.rotation, T.translation + distance * line_of_sight(T, camera_in_fork, face))
 
 
 @pytest.mark.parametrize("distance", [0.025, -0.025])

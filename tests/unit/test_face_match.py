@@ -96,7 +96,8 @@ def test_pocket_bands_must_be_positive():
 
 @pytest.mark.parametrize(
     ("change", "match"),
-    [({"similarity": "chamfer"}, "similarity"), ({"pocket_bands": 0}, "pocket_bands"), ({"depths": -1}, "depths")],
+    [({"similarity": "chamfer"}, "similarity"), ({"pocket_bands": 0}, "pocket_bands"), ({"depths": -1}, "depths"),
+     ({"min_face_px": 0.0}, "min_face_px"), ({"slab_step": -0.05}, "slab_step"), ({"fine_level": 4}, "fine_level")],
 )
 def test_a_pose_search_config_out_of_its_range_is_refused(change, match):
     with pytest.raises(ValueError, match=match):
