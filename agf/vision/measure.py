@@ -66,6 +66,11 @@ class MeasureConfig:
     # paper's correlation with dark pockets, then, when that measurement fails, the region match that
     # does not ask which is brighter (pockets lit from behind or seen into from above).
     similarities: tuple[str, ...] = ("correlation", "regions")
+    # Where those searches all fail, a last one with this similarity from the first start (pitch 0, or the prior's),
+    # its search volume's slabs where the face is thin scanned a level finer (PoseSearchConfig.finer_where_thin):
+    # a face seen from 1.3 m above was found no other way (foreign render unloaded-below-forks). None: no such
+    # search. Only then, as frames that measured without it are then measured as before.
+    steep_similarity: str | None = "regions"
     # Pose and pitch agree when an iteration moves the pitch by less than this; re-fits jitter by about
     # 0.02 deg, so a tighter value only loops (simulated picks failed on 0.01 deg).
     pitch_tolerance: float = math.radians(0.03)
@@ -411,10 +416,14 @@ def measure_pallet(
         return pose.pallet_in_fork if agreed.score >= config.edges.min_score else None
 
     starts = [prior.euler[1]] if prior is not None else [0.0, -volume.pitch_max / 2, volume.pitch_max / 2]
-    attempts = [(similarity, assumed) for similarity in config.similarities for assumed in starts]
+    attempts = [(similarity, assumed, False) for similarity in config.similarities for assumed in starts]
+    searches = list(config.similarities)
+    if config.steep_similarity is not None:
+        attempts.append((config.steep_similarity, starts[0], True))
+        searches.append(f"{config.steep_similarity} a level finer where the face is thin")
     failures: list[MeasurementError] = []
-    for similarity, assumed in attempts:
-        search = dataclasses.replace(config.pose, similarity=similarity)
+    for similarity, assumed, steep in attempts:
+        search = dataclasses.replace(config.pose, similarity=similarity, finer_where_thin=steep)
         # Searched again near a pose of this frame: its rivals and other depths were judged in the wide search, so
         # one candidate and no depths.
         narrow = dataclasses.replace(search, prior_window=0.04, prior_yaw_window=math.radians(2), candidates=1,
@@ -432,7 +441,7 @@ def measure_pallet(
             failures.append(exc)
     else:
         found = Findings(seen.get("pose"), seen.get("evidence"))
-        raise _refusal(failures, volume, config.similarities, found, rough(found.pose))
+        raise _refusal(failures, volume, searches, found, rough(found.pose))
     timing["total"] = (time.perf_counter() - start) * 1e3
     measurement = PalletMeasurement(
         pallet_in_camera=pose.pallet_in_camera,

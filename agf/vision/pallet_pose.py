@@ -54,8 +54,12 @@ class PoseSearchConfig:
     pyramid_level: int = 3
     # Seen steeply from above, the face is a thin band: 28 px tall through a 190 deg lens 1.3 m above it (foreign
     # render unloaded-below-forks), 3.5 px at level 3, where its pockets did not resolve and the best peak within
-    # 80 mm of it ranked 580th. Where the face would be less than this tall at the coarse level, that slab of
-    # the search box (in height) is scanned at a finer level, down to ``fine_level``.
+    # 80 mm of it ranked 580th. With ``finer_where_thin``, each slab of the search box (in height) where the face
+    # would be less than ``min_face_px`` tall at the coarse level is scanned at a finer level, down to
+    # ``fine_level``. Off by default: in every search it reshuffled the candidates of frames that measured at the
+    # coarse level, and moved pitches measured 0.03-0.07 deg from the truth beyond the bounds (campaign seed 7,
+    # picks 120, 174, 182; see MeasureConfig.steep_similarity).
+    finer_where_thin: bool = False
     min_face_px: float = 4.0
     slab_step: float = 0.05  # m: the heights at which the face's image height is worked out
     fine_pixel: float = 0.005  # second scan, around each coarse candidate
@@ -397,7 +401,10 @@ def _slabs(
     box: _Box, camera: CameraModel, camera_in_fork: Transform, face: FaceModel, config: PoseSearchConfig
 ) -> list[tuple[_Box, int]]:
     """``box`` cut in height into slabs, each with the coarsest pyramid level (from ``config.pyramid_level`` down
-    to ``config.fine_level``) at which the face, anywhere in the slab, is ``config.min_face_px`` tall or more."""
+    to ``config.fine_level``) at which the face, anywhere in the slab, is ``config.min_face_px`` tall or more; the
+    whole box at ``config.pyramid_level`` unless ``config.finer_where_thin``."""
+    if not config.finer_where_thin:
+        return [(box, config.pyramid_level)]
     heights = np.arange(box.low[2], box.high[2] + config.slab_step / 2, config.slab_step)
     tall = _face_heights_px(heights, box, camera, camera_in_fork, face)
     with np.errstate(divide="ignore"):

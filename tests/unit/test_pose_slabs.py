@@ -1,6 +1,7 @@
-"""The coarse pose scan in height slabs (:func:`agf.vision.pallet_pose._slabs`): where the face, seen steeply
-from above, would be a band too thin to resolve at the coarse pyramid level, that part of the search box is
-scanned at a finer level, and the slabs cover the box's heights without a gap."""
+"""The coarse pose scan in height slabs (:func:`agf.vision.pallet_pose._slabs`, with
+``PoseSearchConfig.finer_where_thin``): where the face, seen steeply from above, would be a band too thin to
+resolve at the coarse pyramid level, that part of the search box is scanned at a finer level, and the slabs
+cover the box's heights without a gap."""
 
 from __future__ import annotations
 
@@ -29,7 +30,7 @@ def setting():
 @pytest.mark.parametrize("pitch_deg", [0.0, -3.0, 3.0])
 def test_slabs_cover_the_box_and_are_finer_where_the_face_is_thinner(setting, pitch_deg):
     camera, camera_in_fork, face, volume = setting
-    search = PoseSearchConfig()
+    search = PoseSearchConfig(finer_where_thin=True)
     box = _search_box(volume, None, math.radians(pitch_deg), search)
     slabs = _slabs(box, camera, camera_in_fork, face, search)
     edges = [(slab.low[2], slab.high[2]) for slab, _ in slabs]
@@ -50,7 +51,7 @@ def test_a_face_well_below_the_camera_is_scanned_finer_and_one_level_with_it_at_
     above: thinner than the coarse level resolves, so that slab is scanned a level finer; faces at the camera's
     height are not."""
     camera, camera_in_fork, face, volume = setting
-    search = PoseSearchConfig()
+    search = PoseSearchConfig(finer_where_thin=True)
     box = _search_box(volume, None, 0.0, search)
     tall = _face_heights_px(np.array([box.low[2], box.high[2]]), box, camera, camera_in_fork, face)
     assert tall[0] < tall[1]
@@ -58,6 +59,8 @@ def test_a_face_well_below_the_camera_is_scanned_finer_and_one_level_with_it_at_
     assert slabs[0][1] < search.pyramid_level and slabs[-1][1] == search.pyramid_level
     coarse = dataclasses.replace(search, min_face_px=tall.min() / 2.0**search.pyramid_level / 2)
     assert [level for _, level in _slabs(box, camera, camera_in_fork, face, coarse)] == [search.pyramid_level]
+    unless = dataclasses.replace(search, finer_where_thin=False)  # the default: every search but the last attempt
+    assert [level for _, level in _slabs(box, camera, camera_in_fork, face, unless)] == [search.pyramid_level]
 
 
 def test_each_slabs_best_place_is_fitted_besides_the_best_three(setting):
