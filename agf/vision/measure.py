@@ -116,10 +116,6 @@ class MeasureConfig:
     # margin at least the pose search's minimum); a refinement moving it further than this is replaced
     # by a search nearby.
     refine_max: float = 0.01
-    # Nor is it when its face similarity falls by more than this below the pose it started from: refined at the
-    # measured pitch, a right pose (similarity 0.89) slid 8 mm up and 0.7 deg in yaw (0.66), where the face's edges
-    # agreed only 2 % less than the face turned back (random look 2 of paper scene unloaded-high-flat).
-    refine_drop: float = 0.1
     # A pose search returns fits at other depths along the same line of sight where the similarity does not
     # choose (PoseSearchConfig.depths); one is taken instead when its face edges agree this much better (the
     # upright edges fix the face's size, hence its depth). Campaign seed 7, pick 18: the face plus a deck board
@@ -248,8 +244,7 @@ def measure_pallet(
             except MeasurementError:
                 refined = None
             timing["pose"] += (time.perf_counter() - t) * 1e3
-            if (refined is not None and _distance(refined.pallet_in_fork, pose.pallet_in_fork) <= config.refine_max
-                    and refined.score >= pose.score - config.refine_drop):
+            if refined is not None and _distance(refined.pallet_in_fork, pose.pallet_in_fork) <= config.refine_max:
                 return refined
         return pose_at(pose.pallet_in_fork, pitch, narrow)
 
