@@ -407,8 +407,7 @@ def _slabs(
         return [(box, config.pyramid_level)]
     heights = np.arange(box.low[2], box.high[2] + config.slab_step / 2, config.slab_step)
     tall = _face_heights_px(heights, box, camera, camera_in_fork, face)
-    with np.errstate(divide="ignore"):
-        fits = np.floor(np.log2(np.maximum(tall, 1e-9) / config.min_face_px))
+    fits = np.floor(np.log2(np.maximum(tall, 1e-9) / config.min_face_px))  # the floor keeps log2 finite
     levels = np.clip(fits, config.fine_level, config.pyramid_level).astype(int)
     slabs = []
     for start in np.flatnonzero(np.r_[True, levels[1:] != levels[:-1]]):
@@ -431,7 +430,9 @@ def _leaders(best: list[tuple[float, _Params]], slabs: list[list[tuple[float, _P
     return chosen
 
 
-def _face_heights_px(heights: Array, box: _Box, camera: CameraModel, camera_in_fork: Transform, face: FaceModel):
+def _face_heights_px(
+    heights: Array, box: _Box, camera: CameraModel, camera_in_fork: Transform, face: FaceModel
+) -> Array:
     """The face's smallest image height (px) at each of ``heights`` (m, fork frame), over the box's near and far
     ends and its middle in y; infinite where it does not project."""
     rotation = matrix_from_euler(0.0, box.pitch, 0.0)
