@@ -1,5 +1,6 @@
 """A refused verifying measurement: the controller withdraws the forks along the planned line (the
-planner's move) and measures again, once by default; a second refusal ends the pick in FAULT with it.
+planner's move) and measures again, up to ``ControllerConfig.withdrawals`` times (3 by default); the refusal after
+the last ends the pick in FAULT with it.
 
 The controller's logic is the unit here: its axes follow their setpoints at once (test_fleet_pause's),
 the planner's moves are 0.1 m of lift; the planner's own withdrawal is tested in test_viewing_pose."""
@@ -7,6 +8,8 @@ the planner's moves are 0.1 m of lift; the planner's own withdrawal is tested in
 from __future__ import annotations
 
 from types import SimpleNamespace
+
+import pytest
 
 from agf.controller import ControllerConfig, PickController
 from agf.errors import MeasurementError
@@ -55,11 +58,21 @@ def test_a_refused_verification_is_measured_again_from_the_withdrawn_forks_and_t
     assert axis.position == 0.07 + 0.1  # and inserted from there
 
 
-def test_a_second_refusal_ends_the_pick_with_its_reason_and_no_further_motion():
-    result, axis, planner, _ = pick_refusing(2)
+def test_the_refusal_after_the_last_withdrawal_ends_the_pick_with_its_reason_and_no_further_motion():
+    result, axis, planner, _ = pick_refusing(2, ControllerConfig(withdrawals=1))
     assert not result.ok and result.state == "fault"
     assert result.reason == "verifying: refusal 2 while verifying"
     assert axis.position == 0.07 and planner.verified_at == []
+
+
+def test_by_default_the_forks_withdraw_three_times_each_from_where_the_last_withdrawal_ended():
+    result, axis, planner, priors = pick_refusing(3)
+    assert result.ok, result.reason
+    assert len(result.withdrawals) == 3 and len(priors) == 5
+    assert planner.verified_at == [{"lift": pytest.approx(0.1 - 0.09)}]
+    refused, axis, planner, _ = pick_refusing(4)
+    assert refused.reason == "verifying: refusal 4 while verifying" and len(refused.withdrawals) == 3
+    assert planner.verified_at == [] and axis.position == pytest.approx(0.1 - 0.09)
 
 
 def test_with_no_withdrawals_configured_the_first_refusal_ends_the_pick():
