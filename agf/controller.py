@@ -133,10 +133,6 @@ class Planner(Protocol):
         """Whether a measurement refused with the pallet roughly at ``pallet_in_fork`` may succeed after
         :meth:`view_motion`."""
 
-    def look_motion(self, axes_now: Mapping[str, float]) -> Motion:
-        """A move to another view after a refused measurement that :meth:`view_motion` does not answer, clear of
-        whatever the pallet stands on; :class:`AgfError` when there is none."""
-
     def withdraw_motion(self, axes_now: Mapping[str, float], plan: Any) -> Motion:
         """A move back from the pallet along the plan's insertion line, from where a refused verifying
         measurement is taken again; :class:`AgfError` when there is none."""
@@ -169,7 +165,6 @@ class ControllerConfig:
     replans: int = 1
     frame_attempts: int = 3  # a lost or unusable frame is read again, up to this many reads in all
     views: int = 1
-    looks: int = 1  # moves to another view (Planner.look_motion) after a refused first measurement no view answers
     # Each withdrawal moves the forks another ``verify_withdraw`` back, so each verifying frame is a new view: of 27
     # picks of `agf simulate --random 1000 --seed 7` (its first 213) refused after one withdrawal, 6 inserted with
     # three (11 had no room for a second), every measurement of theirs within the bounds (session 37).
@@ -207,7 +202,6 @@ class PickResult:
     log: list[dict[str, Any]]
     wall_durations: dict[str, float] = field(default_factory=dict)
     views: list[str] = field(default_factory=list)
-    looks: list[str] = field(default_factory=list)
     withdrawals: list[str] = field(default_factory=list)
     exposures: list[str] = field(default_factory=list)
     refused: bool = False
@@ -282,7 +276,7 @@ class PickController:
             "inserting": self._insert,
         }
         frame: Frame | None = None
-        view: Motion | None = None  # the move to the next view after a refused first measurement
+        view_of: Transform | None = None  # the rough pose a viewing move is planned for
         replans = 0
         while (state := self._state()) not in ("done", "fault"):
             start, wall_start = self.clock.monotonic(), time.perf_counter()
@@ -294,9 +288,10 @@ class PickController:
                     frame = self._read_frame()
                     event = "acquired"
                 elif state == "measuring":
-                    view, event = self._measure_first(result, frame)
+                    view_of, event = self._measure_first(result, frame)
                 elif state == "viewing":
-                    self._follow(view, state, result)
+                    motion = self.planner.view_motion(self._positions(), view_of)
+                    self._follow(motion, state, result)
                     event = "viewed"
                 else:
                     event = steps[state](result)
@@ -347,13 +342,11 @@ class PickController:
         self.recorder.measurement(state, frame, measurement)
         return measurement
 
-    def _measure_first(self, result: PickResult, frame: Frame | None) -> tuple[Motion | None, str]:
-        """The first measurement of a pick (again after a move to another view), or the move to the next view.
-        When the forks hide the pallet, or the measurement is refused where a move level with the pallet's rough
-        pose would change the view (:meth:`Planner.view_helps`), the move there, as long as the pick has a viewing
-        move left; for any other refusal, the move to another view (:meth:`Planner.look_motion`) while the pick has
-        a look left. When clipped highlights refused it, no move, and the next frame is taken with a shorter
-        exposure."""
+    def _measure_first(self, result: PickResult, frame: Frame | None) -> tuple[Transform | None, str]:
+        """The first measurement of a pick (again after a viewing move). When the forks hide the pallet, or
+        the measurement is refused where a move level with the pallet's rough pose would change the view
+        (:meth:`Planner.view_helps`), the pose to view it from, as long as the pick has a viewing move left. When
+        clipped highlights refused it, no pose, and the next frame is taken with a shorter exposure."""
         prior = result.measurements[-1] if result.measurements else None
         try:
             result.measurements.append(self._measure("measuring", frame, prior))
@@ -363,31 +356,13 @@ class PickController:
             return None, "overexposed"
         except MeasurementError as exc:
             hidden = isinstance(exc, PalletHiddenError)
-            if len(result.views) < self.config.views and exc.pallet_in_fork is not None and (
+            if len(result.views) >= self.config.views or exc.pallet_in_fork is None or not (
                 hidden or self.planner.view_helps(self._positions(), exc.pallet_in_fork)
             ):
-                result.views.append(str(exc))
-                motion = self.planner.view_motion(self._positions(), exc.pallet_in_fork)
-                return motion, "hidden" if hidden else "unclear"
-            motion = self._look(result, exc)
-            if motion is None:
                 raise
-            return motion, "unclear"
+            result.views.append(str(exc))
+            return exc.pallet_in_fork, "hidden" if hidden else "unclear"
         return None, "measured"
-
-    def _look(self, result: PickResult, refusal: MeasurementError) -> Motion | None:
-        """The move to another view after ``refusal`` (:meth:`Planner.look_motion`); None when the pick has no look
-        left or the axes no room for one, and the refusal ends the pick."""
-        if len(result.looks) >= self.config.looks:
-            return None
-        try:
-            motion = self.planner.look_motion(self._positions())
-        except AgfError as exc:
-            self.recorder.note("warning", f"measuring: {refusal}; not looking again from elsewhere: {exc}")
-            return None
-        result.looks.append(str(refusal))
-        self.recorder.note("warning", f"measuring: {refusal}; looking again from elsewhere")
-        return motion
 
     def _timed(self, fn: Callable[..., Any], state: str, *args: Any) -> Any:
         """``fn(*args)``, refused if its computing took longer than the state's timeout (measured by

@@ -50,13 +50,6 @@ class PickSettings:
     # the edges of half the refused campaign picks were not found, and level is where the camera sees
     # the pallet best (it verifies from there). Closer than this, the view would hardly change.
     view_min_lift: float = unit("mm", 0.1)
-    # A first measurement refused where no viewing move applies (the search found no pose the image confirms, or the
-    # forks are level with it already) is taken again with the forks raised this far: a new view, and raising moves
-    # the tips away from whatever the pallet stands on, which a blind move down could meet (a truck bed reaching
-    # under them). Of 86 first frames of the seed 7 campaign that were refused, 12 measured within the bounds from
-    # 150 mm higher and 1 outside them (0.18 deg of pitch); from 300 mm, 3 within (the pallet leaves the search
-    # volume, which moves with the forks). 0: no such move.
-    look_lift: float = unit("mm", 0.15)
     # A verifying measurement that is refused is taken again after the forks withdraw this far (reach) back
     # along their insertion line: the same view gives the same frame, and away from the pallet is the one way
     # that is clear of it whatever the refusal was about.
@@ -65,8 +58,6 @@ class PickSettings:
     def __post_init__(self) -> None:
         if not 0 < self.motion_share <= 1:
             raise ValueError(f"motion_share must be in (0, 1], got {self.motion_share}")
-        if self.look_lift < 0:
-            raise ValueError(f"look_lift_mm: expected 0 (no look) or a lift up in mm, got {self.look_lift * 1e3:g}")
 
 
 def pick_settings_from_mapping(data: Any, where: str) -> PickSettings:
@@ -117,20 +108,6 @@ class PickPlanner:
         except AgfError:
             return False
         return abs(target["lift"] - axes_now["lift"]) >= self.settings.view_min_lift
-
-    def look_motion(self, axes_now: Mapping[str, float]) -> Trajectory:
-        """The lift ``look_lift`` up from ``axes_now``, reach and tilt kept; :class:`AgfError` when the settings
-        have no look or the lift's limits leave no room."""
-        if self.settings.look_lift == 0:
-            raise AgfError("no look from higher up is configured (insertion.look_lift_mm: 0)")
-        lift = axes_now["lift"] + self.settings.look_lift
-        if not self.limits["lift"].contains(lift):
-            raise AgfError(
-                f"no room to raise the forks {self.settings.look_lift * 1e3:.0f} mm and look again: the lift would "
-                f"reach {lift * 1e3:.0f} mm, its limits are [{self.limits['lift'].minimum * 1e3:.0f}, "
-                f"{self.limits['lift'].maximum * 1e3:.0f}] mm"
-            )
-        return plan_move(axes_now, {**axes_now, "lift": lift}, self._motion_limits(), "time")
 
     def _motion_limits(self) -> dict[str, AxisLimits]:
         return {name: a.scaled(self.settings.motion_share) for name, a in self.limits.items()}

@@ -42,7 +42,6 @@ OPTIONAL = {
     "scene": dict,
     "log": (str, type(None)),
     "viewing_moves": int,
-    "looks": int,
     "withdrawals": int,
     "exposure_changes": int,
 }
@@ -127,7 +126,6 @@ def campaign_figures(results: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
         "faulted": counts["faulted"],
         "collisions": sum(r["collision"] for r in results),
         "viewing_moves": sum(r.get("viewing_moves", 0) for r in results),
-        "looks": sum(r.get("looks", 0) for r in results),
         "withdrawals": sum(r.get("withdrawals", 0) for r in results),
         "exposure_changes": sum(r.get("exposure_changes", 0) for r in results),
         "measurements_outside_bounds": sum(not within_bounds(e["error"]) for e in measurement_errors(results)),
@@ -291,8 +289,6 @@ def _markdown(folder: Path, meta: Mapping[str, Any], results: list[dict[str, Any
             f"with {figures['viewing_moves']} moves in all.",
             "",
         ]
-    lines += _measured_again(results, "looks", "Picks whose first measurement was refused where no viewing move "
-                             "applied, so that the forks rose to look again")
     lines += _measured_again(results, "withdrawals", "Picks whose verifying measurement was refused, so that the "
                              "forks withdrew along their insertion line to measure again")
     lines += _measured_again(results, "exposure_changes", "Picks measured again with a shorter exposure (clipped "

@@ -300,7 +300,6 @@ def pick_summary(result: PickResult, world: SimulatedWorld) -> dict[str, Any]:
         "cycle_s": cycle,
         "wall_s": sum(result.wall_durations.values()),
         "viewing_moves": len(result.views),
-        "looks": len(result.looks),
         "withdrawals": len(result.withdrawals),
         "exposure_changes": len(result.exposures),
         "durations_s": result.durations,

@@ -41,7 +41,6 @@ def light_pick(seed: int, index: int, interrupt_at: int | None = None) -> dict:
         "truth": [truth] if outcome != "refused" else [],
         "scene": scene_summary(scene),
         "viewing_moves": int(truth["z_mm"] < -200),
-        "looks": int(index % 3 == 0),
         "withdrawals": int(index % 5 == 0),
         "exposure_changes": int(index % 7 == 0),
     }

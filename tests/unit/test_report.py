@@ -64,9 +64,6 @@ def test_the_report_counts_outcomes_and_tables_reasons(folder):
     assert int(refusals[0][1]) == counts["refused"]
     viewed = sum(r["viewing_moves"] > 0 for r in records)
     assert f"measure again): {viewed}," in markdown and result["viewing_moves"] == viewed
-    looked = [r for r in records if r["looks"] > 0]
-    assert f"rose to look again: {len(looked)}, of which {sum(r['ok'] for r in looked)} inserted." in markdown
-    assert result["looks"] == len(looked) > 0
     withdrawn = [r for r in records if r["withdrawals"] > 0]
     assert f"to measure again: {len(withdrawn)}, of which {sum(r['ok'] for r in withdrawn)} inserted." in markdown
     assert result["withdrawals"] == len(withdrawn) > 0
