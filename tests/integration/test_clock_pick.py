@@ -219,6 +219,26 @@ def test_a_deck_clipped_beside_its_edges_is_measured_again_with_a_shorter_exposu
         assert abs(est["pitch_deg"] - gt["pitch_deg"]) <= 0.1, (est, gt)
 
 
+def test_a_verifying_frame_refused_twice_is_measured_from_further_back_and_the_pick_inserts():
+    """Campaign pick 88 of seed 7: its verifying frames from the aligned forks and from 50 mm back were refused
+    ("ambiguous pallet"), which ended the pick while it had one withdrawal (before session 37). From a second
+    withdrawal, 100 mm back along the insertion line, it measures within the bounds and inserts."""
+    from drivers.sim.world import campaign_scene
+
+    scene = campaign_scene(load_scene(repo_path("configs/scenes/pick.yaml")), 7, 88)
+    with SimulatedWorld(CONFIG, scene) as world:
+        result = world.controller().run()
+        summary = pick_summary(result, world)
+        truths = world.measured_truths[: len(result.measurements)]
+    assert result.ok, result.reason
+    assert len(result.withdrawals) == 2 and summary["withdrawals"] == 2, result.withdrawals
+    assert all("ambiguous pallet" in reason for reason in result.withdrawals), result.withdrawals
+    assert not summary["collision"]
+    for measurement, truth in zip(result.measurements, truths, strict=True):
+        est, gt = measurement.pallet_in_fork.to_dict(), truth.to_dict()
+        assert abs(est["pitch_deg"] - gt["pitch_deg"]) <= 0.1 and abs(est["z_mm"] - gt["z_mm"]) <= 5, (est, gt)
+
+
 def assert_no_measurement_outside_bounds(seed: int, index: int) -> None:
     """Run campaign pick ``index`` of ``seed``: every measurement it accepts lies within the bounds (pitch
     0.1 deg, z 5 mm, x 10 mm)."""
