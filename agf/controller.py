@@ -137,6 +137,10 @@ class Planner(Protocol):
         """A move back from the pallet along the plan's insertion line, from where a refused verifying
         measurement is taken again; :class:`AgfError` when there is none."""
 
+    def expected(self, plan: Any, axes: Mapping[str, float] | None = None) -> Transform:
+        """Where ``plan`` puts the pallet (``pallet_in_fork``) with the forks at ``axes`` (the plan's aligned ones by
+        default)."""
+
     def verify(self, measurement: PalletMeasurement, plan: Any, axes: Mapping[str, float] | None = None) -> str | None:
         """None when the re-measured pallet is where the forks at ``axes`` (the plan's aligned ones by default)
         expect it, else why not."""
@@ -188,8 +192,9 @@ class PickResult:
     ``durations`` are per state on the controller's clock (s; simulated seconds in the simulated
     world, where the vision takes none), ``wall_durations`` the same in wall seconds. ``views`` holds
     why each viewing move was made (the forks hid the pallet), ``withdrawals`` why the forks withdrew to
-    verify again (the verifying measurement was refused), ``exposures`` why the exposure was shortened (clipped
-    highlights). ``refused``: the pick ended on a refusal (a measurement
+    verify again (the verifying measurement was refused), ``confirmations`` why the last verifying frame's face
+    was confirmed at the pitch measured before instead (its own measurement's refusal), ``exposures`` why the
+    exposure was shortened (clipped highlights). ``refused``: the pick ended on a refusal (a measurement
     refused, or two that contradict each other), not a fault.
     """
 
@@ -202,6 +207,7 @@ class PickResult:
     log: list[dict[str, Any]]
     wall_durations: dict[str, float] = field(default_factory=dict)
     views: list[str] = field(default_factory=list)
+    confirmations: list[str] = field(default_factory=list)
     withdrawals: list[str] = field(default_factory=list)
     exposures: list[str] = field(default_factory=list)
     refused: bool = False
@@ -222,8 +228,12 @@ class PickController:
         recorder: Recorder | None = None,
         streamer: Streamer | None = None,
         clock: Clock | None = None,
+        confirm: Callable[[Frame, Transform, PalletMeasurement], PalletMeasurement] | None = None,
     ) -> None:
         self.axes, self.frames, self.measure, self.planner = axes, frames, measure, planner
+        # the pallet's face confirmed where the plan expects it, at the measured pitch (Frame, expected
+        # pallet_in_fork, the measurement the plan was made from): a verifying frame's last resort; None: none
+        self.confirm = confirm
         self.streamer = streamer
         self.config, self.on_cycle = config, on_cycle
         self.recorder = recorder or Recorder()  # the base records nothing
@@ -408,7 +418,8 @@ class PickController:
 
     def _verify(self, result: PickResult) -> str:
         """Measure from the aligned forks; a refused measurement is taken again from further back along the
-        insertion line (:meth:`Planner.withdraw_motion`) while the pick has a withdrawal left."""
+        insertion line (:meth:`Planner.withdraw_motion`) while the pick has a withdrawal left, and the last one's
+        face confirmed where the plan expects it, at the pitch measured before (:meth:`_confirm`)."""
         axes = None  # the plan's aligned axes
         while True:
             frame = self._read_frame()
@@ -421,7 +432,8 @@ class PickController:
             except MeasurementError as exc:
                 motion = self._withdrawal(result, exc)
                 if motion is None:
-                    raise
+                    measurement = self._confirm(result, frame, exc, axes)
+                    break
                 result.withdrawals.append(str(exc))
                 self._follow(motion, "verifying", result)
                 axes = motion.at(motion.duration)
@@ -430,6 +442,26 @@ class PickController:
         if problem is not None:
             self.recorder.note("warning", f"verifying: {problem}; planning again")
         return "verified" if problem is None else "replan"
+
+    def _confirm(self, result: PickResult, frame: Frame, refusal: MeasurementError,
+                 axes: Mapping[str, float] | None) -> PalletMeasurement:
+        """The last verifying ``frame``'s pallet face confirmed where the plan expects it with the forks at ``axes``,
+        at the pitch measured before (``confirm``), after the frame's own measurement gave ``refusal``; ``refusal``
+        again, with the confirmation's reason, when there is no confirmation or it fails."""
+        if self.confirm is None:
+            raise refusal
+        try:
+            measurement = self._timed(self.confirm, "verifying", frame, self.planner.expected(result.plan, axes),
+                                      result.measurements[-1])
+        except (AgfError, TimeoutError) as exc:
+            reason = f"{refusal}; the face was not confirmed where the plan expects it either: {exc}"
+            self.recorder.measurement("verifying", frame, None, reason)
+            raise MeasurementError(reason, found=refusal.found, pallet_in_fork=refusal.pallet_in_fork) from exc
+        self.recorder.measurement("verifying", frame, measurement)
+        self.recorder.note("warning", f"verifying: {refusal}; the face confirmed where the plan expects it, at the "
+                                      "pitch measured before")
+        result.confirmations.append(str(refusal))
+        return measurement
 
     def _shorten_exposure(self, result: PickResult, refusal: OverexposedError, state: str) -> bool:
         """Ask the camera for a shorter exposure after ``refusal``; False when the pick has no shorter one left

@@ -141,7 +141,7 @@ class PickPlanner:
         at = plan.align if axes is None else {**plan.align, **axes}
         fork_in_truck = fork_in_truck_from_axes(at, self.mast)
         check_support_unchanged(fork_in_truck @ measurement.pallet_in_fork, plan.pallet_in_truck, self.settings)
-        expected = fork_in_truck.inverse() @ plan.pallet_in_truck
+        expected = self.expected(plan, axes)
         d = measurement.pallet_in_fork
         pitch = d.euler[1]
         position_error = float(np.linalg.norm(d.translation - expected.translation))
@@ -151,6 +151,13 @@ class PickPlanner:
                 "from where the forks expect it"
             )
         return None
+
+
+    def expected(self, plan: InsertionPlan, axes: Mapping[str, float] | None = None) -> Transform:
+        """Where ``plan`` puts the pallet (frame P in the fork frame) with the forks at ``axes`` (the plan's aligned
+        ones by default)."""
+        at = plan.align if axes is None else {**plan.align, **axes}
+        return fork_in_truck_from_axes(at, self.mast).inverse() @ plan.pallet_in_truck
 
 
 def check_support_unchanged(measured_in_truck: Transform, planned_in_truck: Transform, settings: PickSettings) -> None:

@@ -43,6 +43,7 @@ OPTIONAL = {
     "log": (str, type(None)),
     "viewing_moves": int,
     "withdrawals": int,
+    "confirmations": int,
     "exposure_changes": int,
 }
 COLOURS = {"inserted": "tab:green", "refused": "tab:orange", "faulted": "tab:purple", "collided": "tab:red"}
@@ -127,6 +128,7 @@ def campaign_figures(results: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
         "collisions": sum(r["collision"] for r in results),
         "viewing_moves": sum(r.get("viewing_moves", 0) for r in results),
         "withdrawals": sum(r.get("withdrawals", 0) for r in results),
+        "confirmations": sum(r.get("confirmations", 0) for r in results),
         "exposure_changes": sum(r.get("exposure_changes", 0) for r in results),
         "measurements_outside_bounds": sum(not within_bounds(e["error"]) for e in measurement_errors(results)),
         "min_clearance_mm": min(clearances) if clearances else None,
@@ -291,6 +293,8 @@ def _markdown(folder: Path, meta: Mapping[str, Any], results: list[dict[str, Any
         ]
     lines += _measured_again(results, "withdrawals", "Picks whose verifying measurement was refused, so that the "
                              "forks withdrew along their insertion line to measure again")
+    lines += _measured_again(results, "confirmations", "Picks whose last verifying frame was refused and its face "
+                             "confirmed where the plan expects it, at the pitch measured before")
     lines += _measured_again(results, "exposure_changes", "Picks measured again with a shorter exposure (clipped "
                              "highlights beside the deck's edges)")
     failed = [r for r in results if not r["ok"]]

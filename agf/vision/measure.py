@@ -129,6 +129,10 @@ class MeasureConfig:
     # +-10 mm of the truth, so 20 mm apart); where one agrees better by half ``depth_lead``, the pose is fitted
     # again from there and taken when its face edges then agree better by ``depth_lead``.
     sight_shifts: tuple[float, ...] = (-0.08, -0.06, -0.04, -0.02, 0.02, 0.04, 0.06, 0.08)
+    # A face confirmed where a plan expects it (confirm_pallet) is searched this far around it (m) and must be found
+    # within it: the fine fit converged on a face 150 mm from where it was started, and a pallet moved that far since
+    # it was measured is a pallet to measure again, not to confirm.
+    confirm_window: float = 0.04
 
 
 @dataclass(frozen=True)
@@ -449,6 +453,81 @@ def measure_pallet(
         timing_ms=timing,
     )
     return MeasureDetail(measurement, pose, evidence)
+
+
+def confirm_pallet(
+    image: NDArray,
+    camera: CameraModel,
+    camera_in_fork: Transform,
+    pallet: PalletType,
+    volume: SearchVolume,
+    expected: Transform,
+    *,
+    loaded: bool,
+    sigma_pitch: float,
+    forks: ForkGeometry | None = None,
+    config: MeasureConfig = MeasureConfig(),
+) -> MeasureDetail:
+    """The pallet's front face where a plan expects it, at the plan's pitch, confirmed by its edges.
+
+    For a verifying frame whose own measurement was refused: seen from the aligned forks, 1 m above and in front
+    of the face, a deck edge often shows a second line a few pixels beside it that pairs 0.05-0.16 deg from it,
+    and the pitch is refused while the face itself is found within 1.5 mm (campaign seed 7, picks 47, 70, 78, 162
+    and 170). A pallet on its support may be pushed or turned, not tipped, so the face's place and yaw are what a
+    verification must see again; the pitch stays the one measured before (``expected``'s, its ``sigma_pitch``
+    and ``loaded`` hypothesis). The face is searched within the narrow window of a search near a prior
+    (:attr:`MeasureConfig.confirm_window`, +-2 deg) by each of the configured similarities in turn, and must lie
+    within that window of ``expected`` and pass the pose's checks (:func:`~agf.vision.pallet_pose.check_pose_estimate`)
+    and the face-edge check (:func:`check_face_edges`).
+
+    Parameters
+    ----------
+    volume : SearchVolume
+        Where pallets are searched (fork frame): the confirmed face must lie in it (:func:`check_in_volume`).
+    expected : Transform
+        ``pallet_in_fork`` where the plan puts the pallet relative to the forks now (m, rad).
+    loaded, sigma_pitch
+        The measurement the plan was made from: its hypothesis and its pitch's standard deviation (rad).
+
+    Raises
+    ------
+    MeasurementError
+        The last similarity's reason when no face near ``expected`` passes the checks.
+    """
+    start = time.perf_counter()
+    face = face_model_from_pallet(pallet)
+    gray_f = grey_from_bgr(image).astype(np.float32)
+    failure: MeasurementError | None = None
+    for similarity in config.similarities:
+        search = dataclasses.replace(config.pose, similarity=similarity, prior_window=config.confirm_window,
+                                     prior_yaw_window=math.radians(2), candidates=1, depths=0)
+        try:
+            pose = estimate_pallet_pose(gray_f, camera, camera_in_fork, face, volume, prior=expected,
+                                        pitch=expected.euler[1], forks=forks, config=search)
+            moved = _distance(pose.pallet_in_fork, expected)
+            if moved > config.confirm_window:
+                raise MeasurementError(
+                    f"the front face was found {moved * 1e3:.0f} mm from where the plan expects it (at most "
+                    f"{config.confirm_window * 1e3:.0f}); refusing rather than guessing"
+                )
+            agreement = check_face_edges(image, camera, camera_in_fork, pose.pallet_in_fork, face, forks,
+                                         config.edges)
+            check_in_volume(pose.pallet_in_fork, volume)
+            break
+        except MeasurementError as exc:
+            failure = exc
+    else:
+        raise failure
+    measurement = PalletMeasurement(
+        pallet_in_camera=pose.pallet_in_camera,
+        pallet_in_fork=pose.pallet_in_fork,
+        loaded=loaded,
+        sigma_z=max(pose.sigma[2], config.sigma_z_floor),
+        sigma_pitch=sigma_pitch,
+        scores={"pose": pose.score, "edges": agreement.score},
+        timing_ms={"total": (time.perf_counter() - start) * 1e3},
+    )
+    return MeasureDetail(measurement, pose, {})
 
 
 def check_pitch_sigma(hypothesis: str, sigma: float, limit: float) -> None:

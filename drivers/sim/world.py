@@ -40,7 +40,7 @@ from agf.planner import PickPlanner, pick_settings_from_mapping
 from agf.plugins import load_object
 from agf.recorder import McapRecorder, MeasurementSetup, Recorder, open_pick_log
 from agf.scene import Environment, Load, PalletPlacement, Scene, load_scene
-from agf.vision.measure import measure_pallet
+from agf.vision.measure import confirm_pallet, measure_pallet
 from agf.viz import fork_path_side_view, pick_plots
 from drivers.can_tap import CanTap
 from drivers.cia402_axis import axes_from_config
@@ -196,6 +196,14 @@ class SimulatedWorld:
                 self.measured_truths.append(self.frame_truths[frame.index - 1])
             return measurement
 
+        def confirm(frame: Frame, expected: Transform, measured: PalletMeasurement) -> PalletMeasurement:
+            measurement = confirm_pallet(
+                frame.image, camera, calibration, self.pallet, self.search(), expected, loaded=measured.loaded,
+                sigma_pitch=measured.sigma_pitch, forks=self.config.forks,
+            ).measurement
+            self.measured_truths.append(self.frame_truths[frame.index - 1])
+            return measurement
+
         planner = PickPlanner(
             self.mast, self.config.forks, self.pallet, {n: a.limits for n, a in self.axes.items()}, self.pick_settings
         )
@@ -211,6 +219,7 @@ class SimulatedWorld:
             recorder=recorder,
             streamer=self.network,
             clock=self.clock,
+            confirm=confirm,
         )
 
 
@@ -301,6 +310,7 @@ def pick_summary(result: PickResult, world: SimulatedWorld) -> dict[str, Any]:
         "wall_s": sum(result.wall_durations.values()),
         "viewing_moves": len(result.views),
         "withdrawals": len(result.withdrawals),
+        "confirmations": len(result.confirmations),
         "exposure_changes": len(result.exposures),
         "durations_s": result.durations,
         "measured": [m.pallet_in_fork.to_dict() for m in result.measurements],

@@ -391,3 +391,25 @@ def test_regression_campaign_pick_206_of_seed_7_load_edges_are_not_accepted_agai
     scene, measurement = measure_random_look("campaign-frames/campaign-7-pick-206-level-view")
     assert within_bounds(errors(scene, measurement)), errors(scene, measurement)
     assert measurement.loaded
+
+
+def test_a_face_is_confirmed_where_a_plan_expects_it_at_the_measured_pitch_and_refused_where_there_is_none(rendered):
+    """confirm_pallet, a verifying frame's last resort: near the true pose it finds the face within the bounds and
+    keeps the pitch, hypothesis and pitch sigma it is given; 150 mm to the side, where the fine fit reaches the face
+    from, it refuses (a pallet moved since it was measured is measured again, not confirmed)."""
+    from agf.geometry import Transform
+    from agf.vision.measure import confirm_pallet
+
+    key = "paper/unloaded-middle-flat"
+    scene = load_scene(SCENES / f"{key}.yaml")
+    image = cv2.imread(str(rendered[key]), cv2.IMREAD_COLOR)
+    truth = scene.pallet.in_fork
+    args = (image, load_camera(scene.camera), scene.camera_in_fork, CATALOGUE["jis-t11"], CONFIG.vision.search)
+    near = Transform(truth.rotation, truth.translation + [0.015, -0.02, 0.01])
+    confirmed = confirm_pallet(*args, near, loaded=True, sigma_pitch=0.0007, forks=CONFIG.forks).measurement
+    assert within_bounds(errors(scene, confirmed))
+    assert confirmed.pallet_in_fork.euler[1] == pytest.approx(truth.euler[1], abs=1e-9)
+    assert confirmed.loaded and confirmed.sigma_pitch == 0.0007
+    aside = Transform(truth.rotation, truth.translation + [0.0, 0.15, 0.0])
+    with pytest.raises(MeasurementError, match="from where the plan expects it|no convincing pallet front face"):
+        confirm_pallet(*args, aside, loaded=False, sigma_pitch=0.0007, forks=CONFIG.forks)

@@ -42,5 +42,6 @@ def light_pick(seed: int, index: int, interrupt_at: int | None = None) -> dict:
         "scene": scene_summary(scene),
         "viewing_moves": int(truth["z_mm"] < -200),
         "withdrawals": int(index % 5 == 0),
+        "confirmations": int(index % 4 == 0),
         "exposure_changes": int(index % 7 == 0),
     }

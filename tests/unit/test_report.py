@@ -67,6 +67,10 @@ def test_the_report_counts_outcomes_and_tables_reasons(folder):
     withdrawn = [r for r in records if r["withdrawals"] > 0]
     assert f"to measure again: {len(withdrawn)}, of which {sum(r['ok'] for r in withdrawn)} inserted." in markdown
     assert result["withdrawals"] == len(withdrawn) > 0
+    confirmed = [r for r in records if r["confirmations"] > 0]
+    assert f"at the pitch measured before: {len(confirmed)}, of which {sum(r['ok'] for r in confirmed)} inserted." \
+        in markdown
+    assert result["confirmations"] == len(confirmed) > 0
     darker = [r for r in records if r["exposure_changes"] > 0]
     assert f"(clipped highlights beside the deck's edges): {len(darker)}, of which {sum(r['ok'] for r in darker)} " \
         "inserted." in markdown

@@ -102,3 +102,49 @@ def test_without_room_to_withdraw_the_refusal_ends_the_pick_as_a_refusal_not_a_f
     result = PickController({"lift": axis}, BlankCamera(4, 4), measure, Cornered(), ControllerConfig()).run()
     assert result.reason == "verifying: a second line runs beside the unloaded edges"
     assert result.withdrawals == [] and axis.position == 0.1 and len(calls) == 2
+
+
+class Expecting(Withdrawing):
+    """Withdrawing that also says where its plan expects the pallet: a marker naming the axes."""
+
+    def expected(self, plan, axes=None):
+        return ("expected at", None if axes is None else dict(axes))
+
+
+def pick_confirmed(confirm_refuses: bool):
+    """A pick whose verifying measurements are all refused and whose ``confirm`` is given; what it was called with."""
+    calls, confirmed = [], []
+
+    def measure(frame, prior):
+        calls.append(prior)
+        if len(calls) > 1:
+            raise MeasurementError(f"refusal {len(calls) - 1} while verifying")
+        return "first"
+
+    def confirm(frame, expected, measured):
+        confirmed.append((expected, measured))
+        if confirm_refuses:
+            raise MeasurementError("no convincing pallet front face")
+        return "confirmed"
+
+    axis, planner = IdealAxis(), Expecting()
+    controller = PickController({"lift": axis}, BlankCamera(4, 4), measure, planner, ControllerConfig(withdrawals=1),
+                                confirm=confirm)
+    return controller.run(), axis, planner, confirmed
+
+
+def test_the_last_refused_verifying_frame_is_confirmed_where_the_plan_expects_the_pallet_and_the_pick_goes_on():
+    result, axis, planner, confirmed = pick_confirmed(confirm_refuses=False)
+    assert result.ok, result.reason
+    assert result.withdrawals == ["refusal 1 while verifying"]
+    assert result.confirmations == ["refusal 2 while verifying"]  # after the last withdrawal, on its frame
+    assert confirmed == [(("expected at", {"lift": pytest.approx(0.07)}), "first")]  # at the withdrawn axes
+    assert result.measurements == ["first", "confirmed"] and planner.verified_at == [{"lift": pytest.approx(0.07)}]
+
+
+def test_a_face_not_confirmed_either_ends_the_pick_refused_with_both_reasons():
+    result, axis, planner, confirmed = pick_confirmed(confirm_refuses=True)
+    assert not result.ok and result.refused and result.confirmations == []
+    assert result.reason == ("verifying: refusal 2 while verifying; the face was not confirmed where the plan expects "
+                             "it either: no convincing pallet front face")
+    assert axis.position == pytest.approx(0.07) and planner.verified_at == [] and len(confirmed) == 1
