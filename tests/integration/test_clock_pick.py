@@ -239,6 +239,29 @@ def test_a_verifying_frame_refused_twice_is_measured_from_further_back_and_the_p
         assert abs(est["pitch_deg"] - gt["pitch_deg"]) <= 0.1 and abs(est["z_mm"] - gt["z_mm"]) <= 5, (est, gt)
 
 
+def test_a_verifying_frame_whose_pitch_is_refused_is_confirmed_at_the_measured_pitch_and_the_pick_inserts():
+    """Campaign pick 47 of seed 7: an unloaded pallet on a truck bed, pitched 1.53 deg; its first measurement is
+    within the bounds, and its verifying frames (from the aligned forks and from 50 mm back, where the reach has no
+    room for more) are refused: a second line a few pixels beside a deck edge pairs 0.16 deg from it. The last one's
+    face is confirmed 1.5 mm from where the plan expects it, at the first measurement's pitch, and the pick inserts
+    (before session 37 it ended refused)."""
+    from drivers.sim.world import campaign_scene
+
+    scene = campaign_scene(load_scene(repo_path("configs/scenes/pick.yaml")), 7, 47)
+    with SimulatedWorld(CONFIG, scene) as world:
+        result = world.controller().run()
+        summary = pick_summary(result, world)
+        truths = world.measured_truths[: len(result.measurements)]
+    assert result.ok, result.reason
+    assert len(result.confirmations) == 1 and "a second line runs beside" in result.confirmations[0]
+    assert summary["confirmations"] == 1 and not summary["collision"]
+    first, confirmed = result.measurements
+    assert confirmed.sigma_pitch == first.sigma_pitch and confirmed.loaded == first.loaded
+    for measurement, truth in zip(result.measurements, truths, strict=True):
+        est, gt = measurement.pallet_in_fork.to_dict(), truth.to_dict()
+        assert abs(est["pitch_deg"] - gt["pitch_deg"]) <= 0.1 and abs(est["z_mm"] - gt["z_mm"]) <= 5, (est, gt)
+
+
 def assert_no_measurement_outside_bounds(seed: int, index: int) -> None:
     """Run campaign pick ``index`` of ``seed``: every measurement it accepts lies within the bounds (pitch
     0.1 deg, z 5 mm, x 10 mm)."""
