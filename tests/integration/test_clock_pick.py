@@ -223,20 +223,12 @@ def test_a_verifying_frame_refused_twice_is_measured_from_further_back_and_the_p
     """Campaign pick 88 of seed 7: its verifying frames from the aligned forks and from 50 mm back were refused
     ("ambiguous pallet"), which ended the pick while it had one withdrawal (before session 37). From a second
     withdrawal, 100 mm back along the insertion line, it measures within the bounds and inserts."""
-    from drivers.sim.world import campaign_scene
-
-    scene = campaign_scene(load_scene(repo_path("configs/scenes/pick.yaml")), 7, 88)
-    with SimulatedWorld(CONFIG, scene) as world:
-        result = world.controller().run()
-        summary = pick_summary(result, world)
-        truths = world.measured_truths[: len(result.measurements)]
+    result, summary, truths = run_campaign_pick(7, 88)
     assert result.ok, result.reason
     assert len(result.withdrawals) == 2 and summary["withdrawals"] == 2, result.withdrawals
     assert all("ambiguous pallet" in reason for reason in result.withdrawals), result.withdrawals
     assert not summary["collision"]
-    for measurement, truth in zip(result.measurements, truths, strict=True):
-        est, gt = measurement.pallet_in_fork.to_dict(), truth.to_dict()
-        assert abs(est["pitch_deg"] - gt["pitch_deg"]) <= 0.1 and abs(est["z_mm"] - gt["z_mm"]) <= 5, (est, gt)
+    assert_within_bounds(result.measurements, truths)
 
 
 def test_a_verifying_frame_whose_pitch_is_refused_is_confirmed_at_the_measured_pitch_and_the_pick_inserts():
@@ -245,33 +237,36 @@ def test_a_verifying_frame_whose_pitch_is_refused_is_confirmed_at_the_measured_p
     room for more) are refused: a second line a few pixels beside a deck edge pairs 0.16 deg from it. The last one's
     face is confirmed 1.5 mm from where the plan expects it, at the first measurement's pitch, and the pick inserts
     (before session 37 it ended refused)."""
-    from drivers.sim.world import campaign_scene
-
-    scene = campaign_scene(load_scene(repo_path("configs/scenes/pick.yaml")), 7, 47)
-    with SimulatedWorld(CONFIG, scene) as world:
-        result = world.controller().run()
-        summary = pick_summary(result, world)
-        truths = world.measured_truths[: len(result.measurements)]
+    result, summary, truths = run_campaign_pick(7, 47)
     assert result.ok, result.reason
     assert len(result.confirmations) == 1 and "a second line runs beside" in result.confirmations[0]
     assert summary["confirmations"] == 1 and not summary["collision"]
     first, confirmed = result.measurements
     assert confirmed.sigma_pitch == first.sigma_pitch and confirmed.loaded == first.loaded
-    for measurement, truth in zip(result.measurements, truths, strict=True):
-        est, gt = measurement.pallet_in_fork.to_dict(), truth.to_dict()
-        assert abs(est["pitch_deg"] - gt["pitch_deg"]) <= 0.1 and abs(est["z_mm"] - gt["z_mm"]) <= 5, (est, gt)
+    assert_within_bounds(result.measurements, truths)
 
 
-def assert_no_measurement_outside_bounds(seed: int, index: int) -> None:
-    """Run campaign pick ``index`` of ``seed``: every measurement it accepts lies within the bounds (pitch
-    0.1 deg, z 5 mm, x 10 mm)."""
+def run_campaign_pick(seed: int, index: int):
+    """Campaign pick ``index`` of ``seed`` in a simulated world: its result, summary and the true pose of each
+    measurement it accepted."""
     from drivers.sim.world import campaign_scene
 
     scene = campaign_scene(load_scene(repo_path("configs/scenes/pick.yaml")), seed, index)
     with SimulatedWorld(CONFIG, scene) as world:
         result = world.controller().run()
-        truths = world.measured_truths[: len(result.measurements)]
-    for measurement, truth in zip(result.measurements, truths, strict=True):
+        return result, pick_summary(result, world), world.measured_truths[: len(result.measurements)]
+
+
+def assert_no_measurement_outside_bounds(seed: int, index: int) -> None:
+    """Run campaign pick ``index`` of ``seed``: every measurement it accepts lies within the bounds (pitch
+    0.1 deg, z 5 mm, x 10 mm)."""
+    result, _, truths = run_campaign_pick(seed, index)
+    assert_within_bounds(result.measurements, truths)
+
+
+def assert_within_bounds(measurements, truths) -> None:
+    """Every measurement lies within the bounds (pitch 0.1 deg, z 5 mm, x 10 mm) of its frame's truth."""
+    for measurement, truth in zip(measurements, truths, strict=True):
         est, gt = measurement.pallet_in_fork.to_dict(), truth.to_dict()
         assert abs(est["pitch_deg"] - gt["pitch_deg"]) <= 0.1, (est, gt)
         assert abs(est["z_mm"] - gt["z_mm"]) <= 5 and abs(est["x_mm"] - gt["x_mm"]) <= 10, (est, gt)
