@@ -450,14 +450,14 @@ class PickController:
         again, with the confirmation's reason, when there is no confirmation or it fails."""
         if self.confirm is None:
             raise refusal
+        expected = self.planner.expected(result.plan, axes)
         try:
-            measurement = self._timed(self.confirm, "verifying", frame, self.planner.expected(result.plan, axes),
-                                      result.measurements[-1])
+            measurement = self._timed(self.confirm, "verifying", frame, expected, result.measurements[-1])
         except (AgfError, TimeoutError) as exc:
-            reason = f"{refusal}; the face was not confirmed where the plan expects it either: {exc}"
-            self.recorder.measurement("verifying", frame, None, reason)
-            raise MeasurementError(reason, found=refusal.found, pallet_in_fork=refusal.pallet_in_fork) from exc
-        self.recorder.measurement("verifying", frame, measurement)
+            self.recorder.measurement("confirming", frame, None, str(exc), expected)
+            raise MeasurementError(f"{refusal}; the face was not confirmed where the plan expects it either: {exc}",
+                                   found=refusal.found, pallet_in_fork=refusal.pallet_in_fork) from exc
+        self.recorder.measurement("confirming", frame, measurement, expected=expected)
         self.recorder.note("warning", f"verifying: {refusal}; the face confirmed where the plan expects it, at the "
                                       "pitch measured before")
         result.confirmations.append(str(refusal))

@@ -114,7 +114,9 @@ SCHEMAS: dict[str, dict[str, Any]] = {
     ),
     "agf.Measurement": _object(
         "agf.Measurement", "One pallet measurement, or its refusal with the reason",
-        stage={"type": "string", "description": "measuring (first frame) or verifying (after aligning)"},
+        stage={"type": "string", "description": "measuring (first frame), verifying (after aligning) or confirming "
+               "(a verifying frame's face where the plan expects it, at the pitch measured before)"},
+        expected={**_POSE, "description": "confirming only: where the plan put the pallet (fork frame; mm, deg)"},
         frame={"type": "integer", "description": "sequence number of the frame on /camera/image"},
         ok={"type": "boolean"}, refusal={"type": ["string", "null"]},
         pallet_in_fork=_POSE, pallet_in_camera=_POSE, loaded={"type": "boolean"},
@@ -167,9 +169,11 @@ def transform_message(ns: int, parent: str, child: str, child_in_parent: Transfo
 
 
 def measurement_message(stage: str, frame: int, measurement: PalletMeasurement | None,
-                        refusal: str | None) -> dict[str, Any]:
-    """The ``agf.Measurement`` message of one measurement (mm and degrees)."""
+                        refusal: str | None, expected: Transform | None = None) -> dict[str, Any]:
+    """The ``agf.Measurement`` message of one measurement (mm and degrees); ``expected``, of a confirmation."""
     message: dict[str, Any] = {"stage": stage, "frame": frame, "ok": measurement is not None, "refusal": refusal}
+    if expected is not None:
+        message["expected"] = expected.to_dict()
     if measurement is not None:
         message.update(
             pallet_in_fork=measurement.pallet_in_fork.to_dict(),
@@ -235,8 +239,9 @@ class Recorder:
         """A frame the controller acquired."""
 
     def measurement(self, stage: str, frame: Frame, measurement: PalletMeasurement | None,
-                    refusal: str | None = None) -> None:
-        """The measurement of ``frame`` at ``stage`` (measuring or verifying), or why it was refused."""
+                    refusal: str | None = None, expected: Transform | None = None) -> None:
+        """The measurement of ``frame`` at ``stage`` (measuring, verifying or confirming), or why it was refused;
+        ``expected``, of a confirmation, is where the plan put the pallet (``pallet_in_fork``)."""
 
     def plan(self, plan: Any) -> None:
         """The insertion plan: axis targets and the safety check (:class:`agf.insertion.InsertionPlan`)."""
@@ -328,9 +333,9 @@ class McapRecorder(Recorder):
         self._write("/camera/image", image, now, sequence=frame.index)
 
     def measurement(self, stage: str, frame: Frame, measurement: PalletMeasurement | None,
-                    refusal: str | None = None) -> None:
+                    refusal: str | None = None, expected: Transform | None = None) -> None:
         now = time.time_ns()
-        self._write("/measurement", measurement_message(stage, frame.index, measurement, refusal), now)
+        self._write("/measurement", measurement_message(stage, frame.index, measurement, refusal, expected), now)
         if measurement is None:
             self._log("error", f"{stage}: measurement refused: {refusal}", now)
             return

@@ -5,7 +5,9 @@ model and the pallet catalogue as attachments, the calibration, pallet type, sea
 as metadata), so a folder of logs from trucks is a regression test on real frames: a change to the
 vision that moves a measurement shows here as a difference.
 
-The pick measured without a prior (as the simulated world does), and so does the replay. Frames are
+The pick measured without a prior (as the simulated world does), and so does the replay; a confirmation
+(stage ``confirming``: a verifying frame's face where the plan expected it, at the pitch measured before) is
+confirmed again from the ``expected`` pose it logged. Frames are
 logged as the camera sent them (its JPEG, whose decoding is what the pick measured, or PNG), so with
 unchanged code the replay reproduces the logged measurement to the last digit; :data:`TOLERANCE_MM` and
 :data:`TOLERANCE_DEG` only absorb floating-point noise.
@@ -14,6 +16,7 @@ unchanged code the replay reproduces the logged measurement to the last digit; :
 from __future__ import annotations
 
 import json
+import math
 import tempfile
 from pathlib import Path
 from types import SimpleNamespace
@@ -24,10 +27,10 @@ import numpy as np
 from agf.camera import load_camera
 from agf.config import Config, ForkGeometry, SearchVolume
 from agf.errors import InputError, MeasurementError
-from agf.geometry import Transform
+from agf.geometry import Transform, transform_from_dict
 from agf.pallets import load_pallets, pallet_type
 from agf.recorder import SETUP, LoggedMessage, MeasurementSetup, PickLog, decode_frame, read_log
-from agf.vision.measure import MeasureDetail, measure_pallet
+from agf.vision.measure import MeasureDetail, confirm_pallet, measure_pallet
 
 TOLERANCE_MM = 0.05  # replayed and logged positions agree within this (mm)
 TOLERANCE_DEG = 0.005  # ... and angles within this (deg)
@@ -66,9 +69,16 @@ class _Measurer:
         self.camera = load_camera(setup.camera_file)
         self.pallet = pallet_type(load_pallets(setup.pallets_file), setup.pallet_type)
 
-    def __call__(self, image: np.ndarray) -> MeasureDetail:
+    def __call__(self, image: np.ndarray, logged: dict[str, Any] | None = None) -> MeasureDetail:
+        """The frame measured from scratch, or, for a logged confirmation (stage ``confirming``), its face confirmed
+        where the log says the plan expected it, with the logged hypothesis and pitch sigma."""
         s = self.setup
-        return measure_pallet(image, self.camera, s.camera_in_fork, self.pallet, s.search, forks=s.forks)
+        if logged is None or logged["stage"] != "confirming":
+            return measure_pallet(image, self.camera, s.camera_in_fork, self.pallet, s.search, forks=s.forks)
+        expected = transform_from_dict(logged["expected"], where=f"frame {logged['frame']}: expected")
+        sigma = math.radians(logged["uncertainty"]["pitch_deg"]) if logged["ok"] else 0.0
+        return confirm_pallet(image, self.camera, s.camera_in_fork, self.pallet, s.search, expected,
+                              loaded=bool(logged.get("loaded", False)), sigma_pitch=sigma, forks=s.forks)
 
 
 def compare(logged: dict[str, Any], replayed: MeasureDetail | None, refusal: str | None) -> dict[str, Any]:
@@ -121,7 +131,7 @@ def replay_log(log: PickLog, plots: Path | None = None) -> dict[str, Any]:
         frame = frames.get(message.data["frame"])
         if frame is None:
             raise InputError(f"{log.path}: measurement of frame {message.data['frame']} but no such frame logged")
-        detail, refusal = _measure(measure, frame)
+        detail, refusal = _measure(measure, frame, message.data)
         rows.append(compare(message.data, detail, refusal))
         details.append((frame, detail))
     result: dict[str, Any] = {
@@ -138,14 +148,15 @@ def replay_log(log: PickLog, plots: Path | None = None) -> dict[str, Any]:
     return result
 
 
-def _measure(measure: _Measurer, frame: LoggedMessage) -> tuple[MeasureDetail | None, str | None]:
+def _measure(measure: _Measurer, frame: LoggedMessage,
+             logged: dict[str, Any] | None = None) -> tuple[MeasureDetail | None, str | None]:
     image = decode_frame(frame)
     camera = measure.camera
     if image.shape[:2] != (camera.height, camera.width):
         raise InputError(f"frame {frame.sequence} is {image.shape[1]} x {image.shape[0]}, the logged camera model's "
                          f"frames are {camera.width} x {camera.height}")
     try:
-        return measure(image), None
+        return measure(image, logged), None
     except MeasurementError as exc:
         return None, str(exc)
 

@@ -231,30 +231,41 @@ def test_a_verifying_frame_refused_twice_is_measured_from_further_back_and_the_p
     assert_within_bounds(result.measurements, truths)
 
 
-def test_a_verifying_frame_whose_pitch_is_refused_is_confirmed_at_the_measured_pitch_and_the_pick_inserts():
+def test_a_verifying_frame_whose_pitch_is_refused_is_confirmed_at_the_measured_pitch_and_the_pick_inserts(tmp_path):
     """Campaign pick 47 of seed 7: an unloaded pallet on a truck bed, pitched 1.53 deg; its first measurement is
     within the bounds, and its verifying frames (from the aligned forks and from 50 mm back, where the reach has no
     room for more) are refused: a second line a few pixels beside a deck edge pairs 0.16 deg from it. The last one's
     face is confirmed 1.5 mm from where the plan expects it, at the first measurement's pitch, and the pick inserts
-    (before session 37 it ended refused)."""
-    result, summary, truths = run_campaign_pick(7, 47)
+    (before session 37 it ended refused). Its log replays the confirmation as one (`agf replay`)."""
+    from agf.recorder import read_log
+    from agf.replay import replay_log
+    from tests.config_copy import config_copy
+
+    recorder = {"folder": str(tmp_path / "logs"), "max_total_mb": 500, "flush_period_ms": 200}
+    result, summary, truths = run_campaign_pick(7, 47, load_config(config_copy(tmp_path, recorder=recorder)), True)
     assert result.ok, result.reason
     assert len(result.confirmations) == 1 and "a second line runs beside" in result.confirmations[0]
     assert summary["confirmations"] == 1 and not summary["collision"]
     first, confirmed = result.measurements
     assert confirmed.sigma_pitch == first.sigma_pitch and confirmed.loaded == first.loaded
     assert_within_bounds(result.measurements, truths)
+    replayed = replay_log(read_log(summary["log"]))
+    assert [row["stage"] for row in replayed["measurements"]][-1] == "confirming" and replayed["ok"], replayed
 
 
-def run_campaign_pick(seed: int, index: int):
-    """Campaign pick ``index`` of ``seed`` in a simulated world: its result, summary and the true pose of each
-    measurement it accepted."""
-    from drivers.sim.world import campaign_scene
+def run_campaign_pick(seed: int, index: int, config=CONFIG, logged: bool = False):
+    """Campaign pick ``index`` of ``seed`` in a simulated world: its result, summary (with its log's path when
+    ``logged``, written where ``config`` records) and the true pose of each measurement it accepted."""
+    from drivers.sim.world import campaign_scene, pick_log, world_clock
 
     scene = campaign_scene(load_scene(repo_path("configs/scenes/pick.yaml")), seed, index)
-    with SimulatedWorld(CONFIG, scene) as world:
-        result = world.controller().run()
-        return result, pick_summary(result, world), world.measured_truths[: len(result.measurements)]
+    clock = world_clock(config)
+    with contextlib.ExitStack() as stack:
+        log = stack.enter_context(pick_log(config, scene, f"pick-{index:03d}", clock)) if logged else None
+        world = stack.enter_context(SimulatedWorld(config, scene, clock))
+        result = world.controller(recorder=log).run()
+        summary = {**pick_summary(result, world), "log": None if log is None else str(log.path)}
+        return result, summary, world.measured_truths[: len(result.measurements)]
 
 
 def assert_no_measurement_outside_bounds(seed: int, index: int) -> None:
