@@ -219,18 +219,6 @@ def test_a_deck_clipped_beside_its_edges_is_measured_again_with_a_shorter_exposu
         assert abs(est["pitch_deg"] - gt["pitch_deg"]) <= 0.1, (est, gt)
 
 
-def test_a_verifying_frame_refused_twice_is_measured_from_further_back_and_the_pick_inserts():
-    """Campaign pick 88 of seed 7: its verifying frames from the aligned forks and from 50 mm back were refused
-    ("ambiguous pallet"), which ended the pick while it had one withdrawal (before session 37). From a second
-    withdrawal, 100 mm back along the insertion line, it measures within the bounds and inserts."""
-    result, summary, truths = run_campaign_pick(7, 88)
-    assert result.ok, result.reason
-    assert len(result.withdrawals) == 2 and summary["withdrawals"] == 2, result.withdrawals
-    assert all("ambiguous pallet" in reason for reason in result.withdrawals), result.withdrawals
-    assert not summary["collision"]
-    assert_within_bounds(result.measurements, truths)
-
-
 def test_a_verifying_frame_whose_pitch_is_refused_is_confirmed_at_the_measured_pitch_and_the_pick_inserts(tmp_path):
     """Campaign pick 47 of seed 7: an unloaded pallet on a truck bed, pitched 1.53 deg; its first measurement is
     within the bounds, and its verifying frames (from the aligned forks and from 50 mm back, where the reach has no

@@ -1,6 +1,7 @@
 """A refused verifying measurement: the controller withdraws the forks along the planned line (the
-planner's move) and measures again, up to ``ControllerConfig.withdrawals`` times (3 by default); the refusal after
-the last ends the pick in FAULT with it.
+planner's move) and measures again, once by default (``ControllerConfig.withdrawals``); after the last, the frame's
+face is confirmed where the plan expects it (``confirm``, when the controller has one), else the refusal ends the
+pick in FAULT.
 
 The controller's logic is the unit here: its axes follow their setpoints at once (test_fleet_pause's),
 the planner's moves are 0.1 m of lift; the planner's own withdrawal is tested in test_viewing_pose."""
@@ -59,18 +60,18 @@ def test_a_refused_verification_is_measured_again_from_the_withdrawn_forks_and_t
 
 
 def test_the_refusal_after_the_last_withdrawal_ends_the_pick_with_its_reason_and_no_further_motion():
-    result, axis, planner, _ = pick_refusing(2, ControllerConfig(withdrawals=1))
+    result, axis, planner, _ = pick_refusing(2)
     assert not result.ok and result.state == "fault"
     assert result.reason == "verifying: refusal 2 while verifying"
     assert axis.position == 0.07 and planner.verified_at == []
 
 
-def test_by_default_the_forks_withdraw_three_times_each_from_where_the_last_withdrawal_ended():
-    result, axis, planner, priors = pick_refusing(3)
+def test_with_more_withdrawals_configured_each_starts_where_the_last_ended():
+    result, axis, planner, priors = pick_refusing(3, ControllerConfig(withdrawals=3))
     assert result.ok, result.reason
     assert len(result.withdrawals) == 3 and len(priors) == 5
     assert planner.verified_at == [{"lift": pytest.approx(0.1 - 0.09)}]
-    refused, axis, planner, _ = pick_refusing(4)
+    refused, axis, planner, _ = pick_refusing(4, ControllerConfig(withdrawals=3))
     assert refused.reason == "verifying: refusal 4 while verifying" and len(refused.withdrawals) == 3
     assert planner.verified_at == [] and axis.position == pytest.approx(0.1 - 0.09)
 
@@ -148,3 +149,31 @@ def test_a_face_not_confirmed_either_ends_the_pick_refused_with_both_reasons():
     assert result.reason == ("verifying: refusal 2 while verifying; the face was not confirmed where the plan expects "
                              "it either: no convincing pallet front face")
     assert axis.position == pytest.approx(0.07) and planner.verified_at == [] and len(confirmed) == 1
+
+
+def test_a_pick_re_planned_on_a_verifying_measurement_is_not_confirmed_at_either_pitch():
+    """Campaign pick 647 of seed 7 (session 37): a verifying frame accepted 0.42 deg off re-planned the pick, the next
+    verifying frames were refused, and the face was confirmed at the wrong pitch. The measurements disagreed, so
+    there is no pitch to keep: the refusal ends the pick."""
+
+    class Replanning(Expecting):
+        def verify(self, measurement, plan, axes=None):
+            self.verified_at.append(axes)
+            moved = "after aligning the pallet is 12.0 mm and 0.42 deg from where the forks expect it"
+            return moved if len(self.verified_at) == 1 else None
+
+    calls, confirmed = [], []
+
+    def measure(frame, prior):
+        calls.append(prior)
+        if len(calls) > 2:
+            raise MeasurementError(f"refusal {len(calls) - 2} while verifying")
+        return f"measurement {len(calls)}"
+
+    controller = PickController({"lift": IdealAxis()}, BlankCamera(4, 4), measure, Replanning(),
+                                ControllerConfig(withdrawals=1), confirm=lambda *args: confirmed.append(args))
+    result = controller.run()
+    assert not result.ok and result.refused and confirmed == [] and result.confirmations == []
+    assert result.reason == ("verifying: refusal 2 while verifying; not confirmed at the pitch measured before, as "
+                             "the pick re-planned on a verifying measurement that moved the pallet")
+    assert result.measurements == ["measurement 1", "measurement 2"]
