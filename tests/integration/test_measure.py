@@ -395,8 +395,9 @@ def test_regression_campaign_pick_206_of_seed_7_load_edges_are_not_accepted_agai
 
 def test_a_face_is_confirmed_where_a_plan_expects_it_at_the_measured_pitch_and_refused_where_there_is_none(rendered):
     """confirm_pallet, a verifying frame's last resort: near the true pose it finds the face within the bounds and
-    keeps the pitch, hypothesis and pitch sigma it is given; 150 mm to the side, where the fine fit reaches the face
-    from, it refuses (a pallet moved since it was measured is measured again, not confirmed)."""
+    keeps the pitch, hypothesis and pitch sigma it is given; at a pitch 0.3 deg off, its deck edges contradict it and
+    it refuses; 150 mm to the side, where the fine fit reaches the face from, it refuses (a pallet moved since it was
+    measured is measured again, not confirmed)."""
     from agf.geometry import Transform
     from agf.vision.measure import confirm_pallet
 
@@ -410,6 +411,10 @@ def test_a_face_is_confirmed_where_a_plan_expects_it_at_the_measured_pitch_and_r
     assert within_bounds(errors(scene, confirmed))
     assert confirmed.pallet_in_fork.euler[1] == pytest.approx(truth.euler[1], abs=1e-9)
     assert confirmed.loaded and confirmed.sigma_pitch == 0.0007
+    yaw, pitch, roll = truth.euler
+    steeper = Transform.from_euler(*truth.translation, roll, pitch + math.radians(0.3), yaw)
+    with pytest.raises(MeasurementError, match=r"unloaded edges of this frame give a pitch of .* none within 0\.10"):
+        confirm_pallet(*args, steeper, loaded=False, sigma_pitch=0.0007, forks=CONFIG.forks)
     aside = Transform(truth.rotation, truth.translation + [0.0, 0.15, 0.0])
     with pytest.raises(MeasurementError, match="from where the plan expects it|no convincing pallet front face"):
         confirm_pallet(*args, aside, loaded=False, sigma_pitch=0.0007, forks=CONFIG.forks)
