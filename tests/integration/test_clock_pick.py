@@ -361,9 +361,10 @@ def test_regression_campaign_picks_of_seed_7_a_deck_clipped_in_one_channel_gives
 # 5.03 mm) that the vision before the session measures the same; the first measurements, a fraction of a millimetre
 # and 0.02-0.03 deg apart, aligned the forks a little differently, and so the verifying frames were other frames.
 # Session 37: the last refused verifying frame's face is confirmed at the pitch measured before (confirm_pallet); the
-# list is unchanged, but five of its picks (413, 488, 674, 764, 791), whose first measurement was accepted 0.10-0.30
-# deg off and whose verifying frames were refused, now insert at that pitch (clearance 24.1-25.8 mm) instead of
-# ending refused.
+# list is unchanged. Five of its picks (413, 488, 674, 764, 791) had a first measurement accepted 0.10-0.30 deg off and
+# their verifying frames refused; 413, 674 and 764 are refused by their deck edges (check_kept_pitch), 791's face is
+# not confirmed, and 488 (loaded, 0.146 deg off) now inserts at that pitch (clearance 24.1 mm) instead of ending
+# refused.
 OPEN_CAMPAIGN_WRONG_ACCEPTS = (
     8, 55, 122, 221, 336, 413, 435, 480, 488, 554, 580, 632, 634, 674, 723, 724, 729, 762, 764, 791, 808, 993,
 )
