@@ -451,19 +451,20 @@ class PickController:
         again, with the confirmation's reason, when there is no confirmation, it fails, or the plan was made again
         from a verifying measurement (two measurements disagreed, and the pitch to keep is not known: campaign seed
         7, pick 647, re-planned on a verifying frame 0.42 deg off and confirmed the face at that pitch)."""
+        def refused(why: str) -> MeasurementError:
+            return MeasurementError(f"{refusal}; {why}", found=refusal.found, pallet_in_fork=refusal.pallet_in_fork)
+
         if self.confirm is None:
             raise refusal
         if len(result.measurements) > 1:  # re-planned on a verifying measurement that contradicted the first
-            raise MeasurementError(f"{refusal}; not confirmed at the pitch measured before, as the pick re-planned on "
-                                   "a verifying measurement that moved the pallet", found=refusal.found,
-                                   pallet_in_fork=refusal.pallet_in_fork)
+            raise refused("not confirmed at the pitch measured before, as the pick re-planned on a verifying "
+                          "measurement that moved the pallet")
         expected = self.planner.expected(result.plan, axes)
         try:
             measurement = self._timed(self.confirm, "verifying", frame, expected, result.measurements[-1])
         except (AgfError, TimeoutError) as exc:
             self.recorder.measurement("confirming", frame, None, str(exc), expected)
-            raise MeasurementError(f"{refusal}; the face was not confirmed where the plan expects it either: {exc}",
-                                   found=refusal.found, pallet_in_fork=refusal.pallet_in_fork) from exc
+            raise refused(f"the face was not confirmed where the plan expects it either: {exc}") from exc
         self.recorder.measurement("confirming", frame, measurement, expected=expected)
         self.recorder.note("warning", f"verifying: {refusal}; the face confirmed where the plan expects it, at the "
                                       "pitch measured before")

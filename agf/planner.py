@@ -138,10 +138,9 @@ class PickPlanner:
         MeasurementError
             When the measurement contradicts the plan's in what a bump cannot change (:func:`check_support_unchanged`).
         """
-        at = plan.align if axes is None else {**plan.align, **axes}
-        fork_in_truck = fork_in_truck_from_axes(at, self.mast)
+        fork_in_truck = self._fork_in_truck(plan, axes)
         check_support_unchanged(fork_in_truck @ measurement.pallet_in_fork, plan.pallet_in_truck, self.settings)
-        expected = self.expected(plan, axes)
+        expected = fork_in_truck.inverse() @ plan.pallet_in_truck
         d = measurement.pallet_in_fork
         pitch = d.euler[1]
         position_error = float(np.linalg.norm(d.translation - expected.translation))
@@ -152,12 +151,13 @@ class PickPlanner:
             )
         return None
 
-
     def expected(self, plan: InsertionPlan, axes: Mapping[str, float] | None = None) -> Transform:
         """Where ``plan`` puts the pallet (frame P in the fork frame) with the forks at ``axes`` (the plan's aligned
         ones by default)."""
-        at = plan.align if axes is None else {**plan.align, **axes}
-        return fork_in_truck_from_axes(at, self.mast).inverse() @ plan.pallet_in_truck
+        return self._fork_in_truck(plan, axes).inverse() @ plan.pallet_in_truck
+
+    def _fork_in_truck(self, plan: InsertionPlan, axes: Mapping[str, float] | None) -> Transform:
+        return fork_in_truck_from_axes(plan.align if axes is None else {**plan.align, **axes}, self.mast)
 
 
 def check_support_unchanged(measured_in_truck: Transform, planned_in_truck: Transform, settings: PickSettings) -> None:

@@ -297,8 +297,7 @@ def measure_pallet(
     def check_same_pitch(chosen: PitchEvidence, again: PitchEvidence, where: str) -> None:
         """Refuse when ``again``, the chosen hypothesis' edges searched elsewhere (``where``, for the reason), gives
         (or, ambiguous, offers) a pitch more than :attr:`MeasureConfig.pitch_probe_tolerance` from it."""
-        pitches = [again.pitch] if again.valid else list(again.candidates)
-        other = [p for p in pitches if abs(p - chosen.pitch) > config.pitch_probe_tolerance]
+        other = [p for p in again.offered if abs(p - chosen.pitch) > config.pitch_probe_tolerance]
         if other:
             unsettled(chosen, ", ".join(f"{math.degrees(p):.2f}" for p in other) + " deg", where)
 
@@ -423,10 +422,8 @@ def measure_pallet(
     failures: list[MeasurementError] = []
     for similarity, assumed, steep in attempts:
         search = dataclasses.replace(config.pose, similarity=similarity, finer_where_thin=steep)
-        # Searched again near a pose of this frame: its rivals and other depths were judged in the wide search, so
-        # one candidate and no depths.
-        narrow = dataclasses.replace(search, prior_window=0.04, prior_yaw_window=math.radians(2), candidates=1,
-                                     depths=0)
+        # Searched again near a pose of this frame: its rivals and other depths were judged in the wide search.
+        narrow = near_prior(search, 0.04)
         try:
             pose, chosen, evidence = converged(assumed)
             # before the face-edge check, which costs 50 ms and cannot change the pitch's sigma
@@ -497,11 +494,11 @@ def confirm_pallet(
     """
     start = time.perf_counter()
     face = face_model_from_pallet(pallet)
-    gray_f = grey_from_bgr(image).astype(np.float32)
+    gray = grey_from_bgr(image)
+    gray_f = gray.astype(np.float32)
     failure: MeasurementError | None = None
     for similarity in config.similarities:
-        search = dataclasses.replace(config.pose, similarity=similarity, prior_window=config.confirm_window,
-                                     prior_yaw_window=math.radians(2), candidates=1, depths=0)
+        search = near_prior(dataclasses.replace(config.pose, similarity=similarity), config.confirm_window)
         try:
             pose = estimate_pallet_pose(gray_f, camera, camera_in_fork, face, volume, prior=expected,
                                         pitch=expected.euler[1], forks=forks, config=search)
@@ -515,7 +512,7 @@ def confirm_pallet(
                                          config.edges)
             check_in_volume(pose.pallet_in_fork, volume)
             if not loaded:
-                check_kept_pitch(image, camera, camera_in_fork, pallet, pose.pallet_in_fork, config)
+                check_kept_pitch(gray, image, camera, camera_in_fork, pallet, pose.pallet_in_fork, config)
             break
         except MeasurementError as exc:
             failure = exc
@@ -534,11 +531,12 @@ def confirm_pallet(
 
 
 def check_kept_pitch(
-    image: NDArray, camera: CameraModel, camera_in_fork: Transform, pallet: PalletType, pallet_in_fork: Transform,
-    config: MeasureConfig = MeasureConfig(),
+    gray: NDArray, image: NDArray, camera: CameraModel, camera_in_fork: Transform, pallet: PalletType,
+    pallet_in_fork: Transform, config: MeasureConfig = MeasureConfig(),
 ) -> None:
     """Refuse a confirmed face of an unloaded pallet (:func:`confirm_pallet`) whose frame's own deck edges, searched at
-    ``pallet_in_fork`` (with the pitch kept), give a pitch, or, ambiguous, offer pairings, none of which lies within
+    ``pallet_in_fork`` (with the pitch kept) in ``gray`` (the grey of ``image``, whose colour reads edges beside clipped
+    light), give a pitch, or, ambiguous, offer pairings, none of which lies within
     :attr:`MeasureConfig.pitch_probe_tolerance` (0.1 deg) of the pitch kept; edges not found say nothing against it.
 
     The unloaded verifying frames that are refused mostly find the deck edges and cannot choose between two pairings;
@@ -552,9 +550,9 @@ def check_kept_pitch(
     MeasurementError
         Naming the hypothesis, the pitches found and the pitch kept.
     """
-    found = unloaded_evidence(grey_from_bgr(image), camera, camera_in_fork, pallet, pallet_in_fork, config.pitch,
+    found = unloaded_evidence(gray, camera, camera_in_fork, pallet, pallet_in_fork, config.pitch,
                               colour=image if image.ndim == 3 else None)
-    pitches = [found.pitch] if found.valid else list(found.candidates)
+    pitches = found.offered
     kept = pallet_in_fork.euler[1]
     if pitches and min(abs(p - kept) for p in pitches) > config.pitch_probe_tolerance:
         raise MeasurementError(
@@ -563,6 +561,13 @@ def check_kept_pitch(
             f"{math.degrees(config.pitch_probe_tolerance):.2f} deg of the {math.degrees(kept):.2f} deg measured "
             "before; refusing rather than guessing"
         )
+
+
+def near_prior(search: PoseSearchConfig, window: float) -> PoseSearchConfig:
+    """``search`` narrowed to ``window`` (m) and 2 deg around a prior pose of the same frame, with one candidate and
+    no other depths: the rivals and depths were judged where that pose was found (:func:`measure_pallet`), or are
+    not asked about (:func:`confirm_pallet`)."""
+    return dataclasses.replace(search, prior_window=window, prior_yaw_window=math.radians(2), candidates=1, depths=0)
 
 
 def check_pitch_sigma(hypothesis: str, sigma: float, limit: float) -> None:

@@ -197,6 +197,12 @@ class PitchEvidence:
     clipped: tuple[float, ...] = ()
     overexposed: bool = False
 
+    @property
+    def offered(self) -> list[float]:
+        """The pitch (rad) where valid, else the pitches of its pairings (:attr:`candidates`; none where no pair was
+        found)."""
+        return [self.pitch] if self.valid else list(self.candidates)
+
 
 def unloaded_evidence(
     gray: NDArray,

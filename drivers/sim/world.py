@@ -188,21 +188,21 @@ class SimulatedWorld:
         calibration = load_calibration(self.config.vision.calibration)
         camera = load_camera(self.config.vision.camera)
 
-        def measure(frame: Frame, prior: PalletMeasurement | None) -> PalletMeasurement:
-            measurement = measure_pallet(
-                frame.image, camera, calibration, self.pallet, self.search(), forks=self.config.forks
-            ).measurement
+        def counted(frame: Frame, measurement: PalletMeasurement) -> PalletMeasurement:
             if frame.index <= len(self.frame_truths):  # a replayed frame (the fault tests') has no truth
                 self.measured_truths.append(self.frame_truths[frame.index - 1])
             return measurement
 
+        def measure(frame: Frame, prior: PalletMeasurement | None) -> PalletMeasurement:
+            return counted(frame, measure_pallet(
+                frame.image, camera, calibration, self.pallet, self.search(), forks=self.config.forks
+            ).measurement)
+
         def confirm(frame: Frame, expected: Transform, measured: PalletMeasurement) -> PalletMeasurement:
-            measurement = confirm_pallet(
+            return counted(frame, confirm_pallet(
                 frame.image, camera, calibration, self.pallet, self.search(), expected, loaded=measured.loaded,
                 sigma_pitch=measured.sigma_pitch, forks=self.config.forks,
-            ).measurement
-            self.measured_truths.append(self.frame_truths[frame.index - 1])
-            return measurement
+            ).measurement)
 
         planner = PickPlanner(
             self.mast, self.config.forks, self.pallet, {n: a.limits for n, a in self.axes.items()}, self.pick_settings
