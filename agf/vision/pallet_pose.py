@@ -41,6 +41,7 @@ from agf.errors import MeasurementError, PalletHiddenError
 from agf.geometry import Transform, matrix_from_euler
 from agf.vision.edges import EdgeSearch, search_edges
 from agf.vision.face_model import ENDS, FaceModel
+from agf.vision.face_scores import correlation_scores, region_scores
 from agf.vision.grey import grey_from_bgr
 
 Array = NDArray[np.float64]
@@ -594,9 +595,8 @@ def _responses(integrals, templates: list[_Template], matcher: _Matcher, spans: 
     cols = max(span.shape[1] for span in spans)
     stack = np.full((len(spans), rows, cols), -2.0, np.float32)
     inner = np.zeros(stack.shape, bool)
-    for n, (template, span) in enumerate(zip(templates, spans, strict=True)):
-        response = matcher.match(integrals[:, span.top :, span.left :], template, span.shape)
-        stack[n, : span.shape[0], : span.shape[1]] = response
+    matcher.scores(integrals, templates, np.array([[span.top, span.left, *span.shape] for span in spans]), stack)
+    for n, span in enumerate(spans):
         r0, r1, c0, c1 = span.inner
         inner[n, r0:r1, c0:c1] = True
     return stack, inner
@@ -637,8 +637,16 @@ class _Matcher(Protocol):
 
     edges: tuple[Array, Array]  # the face's cell edges, z from the top and y from the left (m)
 
-    def match(self, integrals: NDArray, template: _Template, shape: tuple[int, int]) -> NDArray[np.float32]:
-        """The score at the first ``shape`` offsets (integral images of sums and squares, stacked)."""
+    def scores(self, integrals: NDArray, templates: Sequence[_Template], spans: NDArray, out: NDArray) -> None:
+        """Each template's scores into ``out`` (S, R, C): from the integral images of sums and squares (stacked,
+        (2, H + 1, W + 1)), at the offsets ``spans`` (S, 4) gives (first row, first column, rows, columns)."""
+
+
+def match(matcher: _Matcher, integrals: NDArray, template: _Template, shape: tuple[int, int]) -> NDArray[np.float32]:
+    """One template's scores (``shape``) at the first ``shape`` offsets."""
+    out = np.empty((1, *shape), np.float32)
+    matcher.scores(integrals, [template], np.array([[0, 0, *shape]]), out)
+    return out[0]
 
 
 def _matcher(face: FaceModel, config: PoseSearchConfig) -> _Matcher:
@@ -647,16 +655,11 @@ def _matcher(face: FaceModel, config: PoseSearchConfig) -> _Matcher:
     return _RegionMatch.of(face, config.pocket_bands)
 
 
-def _window_sums(integrals: NDArray, template: _Template, shape: tuple[int, int]) -> tuple[NDArray, NDArray]:
-    """The intensity sum and sum of squares of the template-sized window at the first ``shape`` offsets."""
-    h, w = template.height, template.width
-    out_rows, out_cols = shape
-    ends = integrals[:, h : h + out_rows]
-    windows = ends[:, :, w : w + out_cols] - integrals[:, :out_rows, w : w + out_cols]
-    windows -= ends[:, :, :out_cols]  # in place: 22,000 calls over the bench's 34 frames
-    windows += integrals[:, :out_rows, :out_cols]
-    total, total_sq = windows
-    return total, total_sq
+def _cells(templates: Sequence[_Template]) -> tuple[NDArray[np.int_], NDArray[np.int_], NDArray[np.int_]]:
+    """The templates' cell boundaries (S, R + 1) and (S, C + 1) and sizes (S, 2): height, width (px)."""
+    rows = np.stack([t.rows for t in templates])
+    cols = np.stack([t.cols for t in templates])
+    return rows, cols, np.array([[t.height, t.width] for t in templates])
 
 
 @dataclass(frozen=True)
@@ -689,31 +692,21 @@ class _Correlation:
         a, b = np.nonzero(weights)
         return cls((z, y), values, (a, b, weights[a, b]), float(corner))
 
-    def match(self, integrals: NDArray, template: _Template, shape: tuple[int, int]) -> NDArray[np.float32]:
-        rows, cols, h, w = template.rows, template.cols, template.height, template.width
-        key = rows.tobytes(), cols.tobytes()
+    def scores(self, integrals: NDArray, templates: Sequence[_Template], spans: NDArray, out: NDArray) -> None:
+        rows, cols, sizes = _cells(templates)
+        a, b, weights = self.corners
+        moments = np.array([self._moments(t) for t in templates])
+        correlation_scores(integrals[0], integrals[1], spans, sizes, np.stack([rows[:, a], cols[:, b]], axis=-1),
+                           weights, self.corner - moments[:, 0], moments[:, 1], out)
+
+    def _moments(self, template: _Template) -> tuple[float, float]:
+        """The raster's mean and norm about it at the template's cell boundaries."""
+        key = template.rows.tobytes(), template.cols.tobytes()
         if key not in self.moments:
-            area = np.diff(rows)[:, None] * np.diff(cols)[None, :]
-            mean = float(np.sum(self.values * area)) / (h * w)
+            area = np.diff(template.rows)[:, None] * np.diff(template.cols)[None, :]
+            mean = float(np.sum(self.values * area)) / (template.height * template.width)
             self.moments[key] = mean, math.sqrt(float(np.sum((self.values - mean) ** 2 * area)))
-        mean, norm = self.moments[key]
-        total, total_sq = _window_sums(integrals, template, shape)
-        out_rows, out_cols = shape
-        a, b, values = self.corners
-        numerator = (self.corner - mean) * total
-        for i, j, value in zip(rows[a].tolist(), cols[b].tolist(), values.tolist(), strict=True):
-            cv2.scaleAdd(integrals[0, i : i + out_rows, j : j + out_cols], value, numerator, dst=numerator)  # one call
-        # in place, as the 19,000 calls over the bench's 34 frames cost mostly per temporary
-        variance = total * total
-        variance /= h * w
-        np.subtract(total_sq, variance, out=variance)
-        flat = variance <= 1e-9 * total_sq  # no variance beyond rounding: scores 0, as in OpenCV
-        variance[flat] = 1.0
-        deviation = np.sqrt(variance, out=variance)
-        deviation *= max(norm, 1e-12)
-        score = np.divide(numerator, deviation, out=numerator)
-        score[flat] = 0.0
-        return np.clip(score, -1.0, 1.0, out=score).astype(np.float32)
+        return self.moments[key]
 
 
 @dataclass(frozen=True)
@@ -737,29 +730,11 @@ class _RegionMatch:
             rects.append((r.min(), r.max() + 1, c.min(), c.max() + 1))
         return cls((z, y), np.array(rects, int).reshape(-1, 4))
 
-    def match(self, integrals: NDArray, template: _Template, shape: tuple[int, int]) -> NDArray[np.float32]:
-        rows, cols = template.rows, template.cols
-        out_rows, out_cols = shape
-        total, total_sq = _window_sums(integrals, template, shape)
-        bands = [(rows[r0], rows[r1], cols[c0], cols[c1]) for r0, r1, c0, c1 in self.openings.tolist()]
-        bands = [(top, bottom, left, right) for top, bottom, left, right in bands if bottom > top and right > left]
-        # the wood first, then each band, written in place: the temporaries of 9,000 calls a refused frame cost
-        # more than their arithmetic (the same operations in the same order: the same scores to the bit)
-        sums = np.empty((len(bands) + 1, out_rows, out_cols))
-        sums[0] = total
-        for band, (top, bottom, left, right) in zip(sums[1:], bands, strict=True):
-            np.subtract(integrals[0, bottom : bottom + out_rows, right : right + out_cols],
-                        integrals[0, top : top + out_rows, right : right + out_cols], out=band)
-            band -= integrals[0, bottom : bottom + out_rows, left : left + out_cols]
-            band += integrals[0, top : top + out_rows, left : left + out_cols]
-        if bands:
-            opened = sums[1].copy()
-            for band in sums[2:]:
-                opened += band
-            sums[0] -= opened
-        areas = [(bottom - top) * (right - left) for top, bottom, left, right in bands]
-        size = template.height * template.width
-        return region_match(sums, np.array([size - sum(areas), *areas], float), total, total_sq)
+    def scores(self, integrals: NDArray, templates: Sequence[_Template], spans: NDArray, out: NDArray) -> None:
+        rows, cols, sizes = _cells(templates)
+        r0, r1, c0, c1 = self.openings.T
+        bands = np.stack([rows[:, r0], rows[:, r1], cols[:, c0], cols[:, c1]], axis=-1)
+        region_scores(integrals[0], integrals[1], spans, sizes, bands, out)
 
 
 def region_match(sums: Array, areas: Array, total: Array, total_sq: Array) -> NDArray[np.float32]:

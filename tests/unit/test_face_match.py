@@ -13,7 +13,7 @@ from agf.config import load_config
 from agf.pallets import load_pallets
 from agf.paths import DEFAULT_CONFIG
 from agf.vision.face_model import FaceModel, face_model_from_pallet
-from agf.vision.pallet_pose import PoseSearchConfig, _Correlation, _RegionMatch, _templates, region_match
+from agf.vision.pallet_pose import PoseSearchConfig, _Correlation, _RegionMatch, _templates, match, region_match
 
 PIXEL = 0.01  # m per pixel of the synthetic views
 
@@ -34,7 +34,7 @@ def scores_at_every_offset(matcher, face: FaceModel, view: np.ndarray) -> tuple[
     template = _templates(face, matcher.edges, np.array([PIXEL]))[0]
     shape = (view.shape[0] - template.height + 1, view.shape[1] - template.width + 1)
     integrals = np.stack(cv2.integral2(view, sdepth=cv2.CV_64F, sqdepth=cv2.CV_64F))
-    return matcher.match(integrals, template, shape), np.array([template.height, template.width])
+    return match(matcher, integrals, template, shape), np.array([template.height, template.width])
 
 
 def r2_by_pixels(window: np.ndarray, regions: np.ndarray) -> float:
