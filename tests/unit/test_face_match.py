@@ -82,6 +82,24 @@ def test_region_match_does_not_ask_which_is_brighter(face, pockets):
     assert correlation[10, 10] > 0.95 if pockets == "dark" else correlation[10, 10] < -0.95
 
 
+@pytest.mark.parametrize("matcher", ["correlation", "regions"])
+def test_scales_scored_in_one_call_equal_each_scored_alone(face, matcher):
+    """The scan scores every scale of a yaw in one compiled call, each from its own first offset: each must
+    equal that template scored alone from offset 0 of the view cut at that offset."""
+    scorer = _Correlation.of(face) if matcher == "correlation" else _RegionMatch.of(face, 3)
+    rng = np.random.default_rng(4)
+    view = cv2.GaussianBlur(rng.uniform(0, 255, (60, 180)).astype(np.float32), (0, 0), 1.5)
+    integrals = np.stack(cv2.integral2(view, sdepth=cv2.CV_64F, sqdepth=cv2.CV_64F))
+    templates = _templates(face, scorer.edges, np.array([PIXEL, 1.3 * PIXEL, 1.7 * PIXEL]))
+    spans = np.array([[3, 7, 9, 20], [0, 0, 12, 31], [11, 2, 5, 8]])
+    out = np.full((3, 14, 31), -2.0, np.float32)
+    scorer.scores(integrals, templates, spans, out)
+    for n, (top, left, rows, cols) in enumerate(spans.tolist()):
+        alone = match(scorer, integrals[:, top:, left:], templates[n], (rows, cols))
+        np.testing.assert_array_equal(out[n, :rows, :cols], alone)
+        assert np.all(out[n, rows:] == -2.0) and np.all(out[n, :, cols:] == -2.0)  # nothing beyond its span
+
+
 def test_region_match_of_a_flat_window_is_zero():
     sums, areas = np.array([[10.0], [30.0]]), np.array([1.0, 3.0])  # every pixel 10
     assert region_match(sums, areas, np.array([40.0]), np.array([400.0]))[0] == 0.0
