@@ -754,17 +754,13 @@ def region_match(sums: Array, areas: Array, total: Array, total_sq: Array) -> ND
     may be darker than the wood or lighter, as long as the wood is one surface and the pockets differ.
     """
     n = float(np.sum(areas))
-    # in place (0-d arrays for one window): the region match scores every offset of 9,000 scales a refused frame
-    mean_sq = np.multiply(total, total, out=np.empty(np.shape(total)))
-    mean_sq /= n
-    between = np.asarray(np.tensordot(1.0 / areas, sums * sums, axes=1))
-    between -= mean_sq
-    variance = np.subtract(total_sq, mean_sq, out=mean_sq)
+    mean_sq = total * total / n
+    between = np.tensordot(1.0 / areas, sums * sums, axes=1) - mean_sq
+    variance = total_sq - mean_sq
     flat = variance <= 1e-9 * np.maximum(total_sq, 1e-30)  # no variance beyond rounding
-    variance[flat] = 1.0
-    score = np.divide(between, variance, out=between)
-    score[flat] = 0.0
-    return np.clip(score, 0.0, 1.0, out=score).astype(np.float32)[()]
+    score = between / np.where(flat, 1.0, variance)
+    score = np.where(flat, 0.0, score)
+    return np.clip(score, 0.0, 1.0).astype(np.float32)
 
 
 def _distinct(found: list[tuple[float, _Params]], face: FaceModel, eye: Array) -> list[tuple[float, _Params]]:
