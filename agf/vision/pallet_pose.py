@@ -387,7 +387,7 @@ def _scan(
         f = float(np.mean(origins_v[:, 0])) / pixel
         window = _window(origins_v, face, f)
         view = _view(level_image, camera, _key(R_cv), window, f, level)
-        integrals = np.stack(cv2.integral2(view, sdepth=cv2.CV_64F, sqdepth=cv2.CV_64F))  # for every scale
+        integrals = cv2.integral2(view, sdepth=cv2.CV_64F, sqdepth=cv2.CV_64F)  # sums and squares, for every scale
         reach_v = fork_in_camera.apply(slack) @ R_cv
         bounds_v = (*reach_v[:, 1:].min(axis=0).tolist(), *reach_v[:, 1:].max(axis=0).tolist())
         step = scale_step_px / face.width
@@ -540,12 +540,12 @@ class _Span:
     inner: tuple[int, int, int, int]
 
 
-def _span(integrals: NDArray, template: _Template, scale: float, window, bounds_v) -> _Span | None:
+def _span(integrals: tuple[NDArray, NDArray], template: _Template, scale: float, window, bounds_v) -> _Span | None:
     """The offsets of one scale whose face origin lies within ``bounds_v`` (the box's view-frame extent
     in y and z: low y, low z, high y, high z), and 2 px around them for the local maximum test; None
     when there are none."""
     height, width = template.height, template.width
-    out_rows, out_cols = integrals.shape[1] - height, integrals.shape[2] - width
+    out_rows, out_cols = integrals[0].shape[0] - height, integrals[0].shape[1] - width
     if height < 3 or out_rows < 2 or out_cols < 2:
         return None
     y_low, z_low, y_high, z_high = bounds_v
@@ -637,16 +637,12 @@ class _Matcher(Protocol):
 
     edges: tuple[Array, Array]  # the face's cell edges, z from the top and y from the left (m)
 
-    def scores(self, integrals: NDArray, templates: Sequence[_Template], spans: NDArray, out: NDArray) -> None:
-        """Each template's scores into ``out`` (S, R, C): from the integral images of sums and squares (stacked,
-        (2, H + 1, W + 1)), at the offsets ``spans`` (S, 4) gives (first row, first column, rows, columns)."""
-
-
-def match(matcher: _Matcher, integrals: NDArray, template: _Template, shape: tuple[int, int]) -> NDArray[np.float32]:
-    """One template's scores (``shape``) at the first ``shape`` offsets."""
-    out = np.empty((1, *shape), np.float32)
-    matcher.scores(integrals, [template], np.array([[0, 0, *shape]]), out)
-    return out[0]
+    def scores(
+        self, integrals: tuple[NDArray, NDArray], templates: Sequence[_Template], spans: NDArray, out: NDArray
+    ) -> None:
+        """Each template's scores into ``out`` (S, R, C): from the view's integral images of sums and squares
+        (each (H + 1, W + 1), as ``cv2.integral2`` gives them), at the offsets ``spans`` (S, 4) gives (first row,
+        first column, rows, columns)."""
 
 
 def _matcher(face: FaceModel, config: PoseSearchConfig) -> _Matcher:
@@ -692,11 +688,13 @@ class _Correlation:
         a, b = np.nonzero(weights)
         return cls((z, y), values, (a, b, weights[a, b]), float(corner))
 
-    def scores(self, integrals: NDArray, templates: Sequence[_Template], spans: NDArray, out: NDArray) -> None:
+    def scores(
+        self, integrals: tuple[NDArray, NDArray], templates: Sequence[_Template], spans: NDArray, out: NDArray
+    ) -> None:
         rows, cols, sizes = _cells(templates)
         a, b, weights = self.corners
         moments = np.array([self._moments(t) for t in templates])
-        correlation_scores(integrals[0], integrals[1], spans, sizes, np.stack([rows[:, a], cols[:, b]], axis=-1),
+        correlation_scores(*integrals, spans, sizes, np.stack([rows[:, a], cols[:, b]], axis=-1),
                            weights, self.corner - moments[:, 0], moments[:, 1], out)
 
     def _moments(self, template: _Template) -> tuple[float, float]:
@@ -730,11 +728,13 @@ class _RegionMatch:
             rects.append((r.min(), r.max() + 1, c.min(), c.max() + 1))
         return cls((z, y), np.array(rects, int).reshape(-1, 4))
 
-    def scores(self, integrals: NDArray, templates: Sequence[_Template], spans: NDArray, out: NDArray) -> None:
+    def scores(
+        self, integrals: tuple[NDArray, NDArray], templates: Sequence[_Template], spans: NDArray, out: NDArray
+    ) -> None:
         rows, cols, sizes = _cells(templates)
         r0, r1, c0, c1 = self.openings.T
         bands = np.stack([rows[:, r0], rows[:, r1], cols[:, c0], cols[:, c1]], axis=-1)
-        region_scores(integrals[0], integrals[1], spans, sizes, bands, out)
+        region_scores(*integrals, spans, sizes, bands, out)
 
 
 def region_match(sums: Array, areas: Array, total: Array, total_sq: Array) -> NDArray[np.float32]:

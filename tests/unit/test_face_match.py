@@ -13,7 +13,7 @@ from agf.config import load_config
 from agf.pallets import load_pallets
 from agf.paths import DEFAULT_CONFIG
 from agf.vision.face_model import FaceModel, face_model_from_pallet
-from agf.vision.pallet_pose import PoseSearchConfig, _Correlation, _RegionMatch, _templates, match, region_match
+from agf.vision.pallet_pose import PoseSearchConfig, _Correlation, _RegionMatch, _templates, region_match
 
 PIXEL = 0.01  # m per pixel of the synthetic views
 
@@ -33,8 +33,15 @@ def regions_image(face: FaceModel, bands: int) -> np.ndarray:
 def scores_at_every_offset(matcher, face: FaceModel, view: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     template = _templates(face, matcher.edges, np.array([PIXEL]))[0]
     shape = (view.shape[0] - template.height + 1, view.shape[1] - template.width + 1)
-    integrals = np.stack(cv2.integral2(view, sdepth=cv2.CV_64F, sqdepth=cv2.CV_64F))
-    return match(matcher, integrals, template, shape), np.array([template.height, template.width])
+    integrals = cv2.integral2(view, sdepth=cv2.CV_64F, sqdepth=cv2.CV_64F)
+    return score_one(matcher, integrals, template, shape), np.array([template.height, template.width])
+
+
+def score_one(matcher, integrals, template, shape: tuple[int, int]) -> np.ndarray:
+    """One template's scores at the first ``shape`` offsets of the view the ``integrals`` are of."""
+    out = np.empty((1, *shape), np.float32)
+    matcher.scores(integrals, [template], np.array([[0, 0, *shape]]), out)
+    return out[0]
 
 
 def r2_by_pixels(window: np.ndarray, regions: np.ndarray) -> float:
@@ -89,13 +96,13 @@ def test_scales_scored_in_one_call_equal_each_scored_alone(face, matcher):
     scorer = _Correlation.of(face) if matcher == "correlation" else _RegionMatch.of(face, 3)
     rng = np.random.default_rng(4)
     view = cv2.GaussianBlur(rng.uniform(0, 255, (60, 180)).astype(np.float32), (0, 0), 1.5)
-    integrals = np.stack(cv2.integral2(view, sdepth=cv2.CV_64F, sqdepth=cv2.CV_64F))
+    integrals = cv2.integral2(view, sdepth=cv2.CV_64F, sqdepth=cv2.CV_64F)
     templates = _templates(face, scorer.edges, np.array([PIXEL, 1.3 * PIXEL, 1.7 * PIXEL]))
     spans = np.array([[3, 7, 9, 20], [0, 0, 12, 31], [11, 2, 5, 8]])
     out = np.full((3, 14, 31), -2.0, np.float32)
     scorer.scores(integrals, templates, spans, out)
     for n, (top, left, rows, cols) in enumerate(spans.tolist()):
-        alone = match(scorer, integrals[:, top:, left:], templates[n], (rows, cols))
+        alone = score_one(scorer, [image[top:, left:] for image in integrals], templates[n], (rows, cols))
         np.testing.assert_array_equal(out[n, :rows, :cols], alone)
         assert np.all(out[n, rows:] == -2.0) and np.all(out[n, :, cols:] == -2.0)  # nothing beyond its span
 
