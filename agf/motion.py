@@ -35,6 +35,32 @@ class Trajectory:
         return dict(zip(self.names, velocity, strict=True))
 
 
+@dataclass(frozen=True)
+class MoveSequence:
+    """Moves run one after another, each from rest where the one before ended: positions of every axis any of
+    them moves (the ``start`` of those a move leaves alone) at time ``t`` (s) from the first one's start."""
+
+    start: Mapping[str, float]
+    moves: tuple[Trajectory, ...]
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(dict.fromkeys(name for move in self.moves for name in move.names))
+
+    @property
+    def duration(self) -> float:
+        return sum(move.duration for move in self.moves)
+
+    def at(self, t: float) -> dict[str, float]:
+        positions = {name: self.start[name] for name in self.names}
+        for move in self.moves:
+            positions.update(move.at(t))
+            if t <= move.duration:
+                break
+            t -= move.duration
+        return positions
+
+
 def plan_move(
     start: Mapping[str, float],
     target: Mapping[str, float],

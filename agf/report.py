@@ -35,6 +35,7 @@ REQUIRED = {"run": int, "ok": bool, "outcome": str, "collision": bool}
 OPTIONAL = {
     "reason": (str, type(None)),
     "min_clearance_mm": (int, float, type(None)),
+    "min_support_clearance_mm": (int, float, type(None)),
     "cycle_s": (int, float),
     "durations_s": dict,
     "measured": list,

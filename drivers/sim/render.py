@@ -277,15 +277,19 @@ def _support(
     bottom = float(scene.pallet.in_fork.apply([0.0, 0.0, kind.deck_bottom])[2])
     hall = min(bottom, -forks.thickness / 2) - 0.03
     material = "truck-bed" if scene.environment.floor == "truck-bed" else ("concrete" if look is None else "dock")
-    slab = _box(
-        target,
-        (-0.12 if look is None else look.bed_edge, 4.0),
-        (-3.0, 3.0),
-        (kind.deck_bottom - (bottom - hall) - 0.5, kind.deck_bottom),
-        material,
-        "support",
-    )
+    (front, left, _), (back, right, top) = support_box(kind, look)
+    slab = _box(target, (front, back), (left, right), (kind.deck_bottom - (bottom - hall) - 0.5, top), material,
+                "support")
     return [slab, _floor(fork_in_camera @ Transform.from_euler(z=hall), "concrete")]
+
+
+def support_box(kind: PalletType, look: Look | None) -> Array:
+    """The slab the pallet stands on (truck bed or dock, :func:`_support`) as a box in frame P: its low and high
+    corner (2, 3), m. Its top is the pallet's underside, its front edge 0.12 m before the pallet's face (a random
+    look moves it, from 0.35 m before the face to just under the pallet); it reaches 4 m back, 3 m to either
+    side and, for the collision count, 2 m down (the rendered slab stands on the hall floor)."""
+    front = -0.12 if look is None else look.bed_edge
+    return np.array([[front, -3.0, kind.deck_bottom - 2.0], [4.0, 3.0, kind.deck_bottom]])
 
 
 def _background(

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from multiprocessing import get_context
 from pathlib import Path
 
@@ -31,14 +32,28 @@ def render_all(scene_paths: list[Path], out_dir: Path) -> dict[str, Path]:
     return {f"{p.parent.name}/{p.stem}": out_dir / f"{p.parent.name}-{p.stem}.png" for p in scene_paths}
 
 
-def campaign_first_frame(seed: int, index: int):
-    """Pick ``index`` of the random campaign ``seed``: its scene and the first frame the simulated world
-    renders of it (colour)."""
+# Looks of campaign seed 7 drawn before session 39, whose truck bed or dock held the tines' tips at the start
+# (random_scene draws such a look again now): their regression tests keep the frames they were written for.
+LOOKS_BEFORE_THE_SUPPORT_CHECK = {386: 1234191223, 660: 319796515, 993: 1680325261}
+
+
+def campaign_scene_of(seed: int, index: int):
+    """Pick ``index`` of the random campaign ``seed``, with the look it had when its regression test was written."""
     from agf.scene import load_scene
-    from drivers.sim.fast_render import render_fast
     from drivers.sim.world import campaign_scene
 
     scene = campaign_scene(load_scene(repo_path("configs/scenes/pick.yaml")), seed, index)
+    if seed == 7 and index in LOOKS_BEFORE_THE_SUPPORT_CHECK:
+        return dataclasses.replace(scene, seed=LOOKS_BEFORE_THE_SUPPORT_CHECK[index])
+    return scene
+
+
+def campaign_first_frame(seed: int, index: int):
+    """Pick ``index`` of the random campaign ``seed`` (:func:`campaign_scene_of`): its scene and the first frame the
+    simulated world renders of it (colour)."""
+    from drivers.sim.fast_render import render_fast
+
+    scene = campaign_scene_of(seed, index)
     return scene, render_fast(scene)[0]
 
 

@@ -6,6 +6,7 @@ of its own) now moves the forks to a viewing pose and inserts."""
 from __future__ import annotations
 
 import contextlib
+import math
 
 import numpy as np
 import pytest
@@ -17,6 +18,7 @@ from agf.paths import DEFAULT_CONFIG, repo_path
 from agf.scene import load_scene
 from drivers.sim import world as world_module
 from drivers.sim.world import RenderedCamera, SimulatedWorld, pick_summary, simulate_command
+from tests.integration.conftest import campaign_scene_of
 
 CONFIG = load_config(DEFAULT_CONFIG)
 SCENE = load_scene(repo_path("configs/scenes/pick.yaml"))
@@ -254,9 +256,9 @@ def test_regression_campaign_pick_674_of_seed_7_is_not_confirmed_at_a_first_pitc
 def run_campaign_pick(seed: int, index: int, config=CONFIG, logged: bool = False):
     """Campaign pick ``index`` of ``seed`` in a simulated world: its result, summary (with its log's path when
     ``logged``, written where ``config`` records) and the true pose of each measurement it accepted."""
-    from drivers.sim.world import campaign_scene, pick_log, world_clock
+    from drivers.sim.world import pick_log, world_clock
 
-    scene = campaign_scene(load_scene(repo_path("configs/scenes/pick.yaml")), seed, index)
+    scene = campaign_scene_of(seed, index)
     clock = world_clock(config)
     with contextlib.ExitStack() as stack:
         log = stack.enter_context(pick_log(config, scene, f"pick-{index:03d}", clock)) if logged else None
@@ -303,14 +305,12 @@ def test_regression_campaign_pick_386_of_seed_7_ends_refused_not_in_the_pallet()
     """An unloaded pallet pitched 2.28 deg on a truck bed, a shadow's edge beside a deck edge: its first frame was
     accepted 1.58 deg low, its verifying frame 38 mm low, and the pick re-planned on the latter and drove the tines
     10 mm into the pallet (session 26). The two measurements contradict each other (a pallet is not lowered while the
-    forks align): the pick must insert clear of the pallet or end refused, never re-plan on either."""
-    from drivers.sim.world import campaign_scene, pick_outcome
-
-    scene = campaign_scene(load_scene(repo_path("configs/scenes/pick.yaml")), 7, 386)
-    with SimulatedWorld(CONFIG, scene) as world:
+    forks align): the pick must insert clear of the pallet or end refused, never re-plan on either. Its look put the
+    truck bed around the tines' tips (a scene no truck starts in, drawn again since session 39; conftest's
+    campaign_scene_of keeps it), so the pallet alone is judged here, not the bed."""
+    with SimulatedWorld(CONFIG, campaign_scene_of(7, 386)) as world:
         result = world.controller().run()
-        outcome = pick_outcome(result, world)
-    assert outcome in ("inserted", "refused"), (outcome, result.reason)
+        assert min(world.clearances, default=math.inf) >= 0, min(world.clearances)
     assert result.ok or "refusing rather than guessing" in result.reason, result.reason
 
 

@@ -107,3 +107,21 @@ def test_simulate_runs_picks_side_by_side_each_on_its_own_bus(capsys, tmp_path):
         assert side is not None and (tmp_path / f"pick-{run:03d}" / "pick_axes.png").is_file()
         green_path = (side[..., 1] > 120) & (side[..., 0] < 40) & (side[..., 2] < 40)
         assert green_path.sum() > 100  # the tip's path, with clearance to spare
+
+
+def test_tines_driven_into_the_slab_the_pallet_stands_on_are_a_collision():
+    """The world counts contact with the truck bed or dock under the pallet as it counts contact with the pallet:
+    a control cycle with the tines' tips 50 mm before the pallet's face and 100 mm below its underside (inside the
+    slab, which reaches 0.12 m before the face in the fixed look) is a collision, while the pallet is not touched."""
+    from agf.geometry import Transform
+    from agf.kinematics import axes_from_fork_in_truck
+
+    with SimulatedWorld(CONFIG, SCENE) as world:
+        world.on_cycle(world.positions())
+        assert world.min_support_clearance > 0 and world.min_clearance > 0
+        into = Transform(translation=[-0.05, 0.0, world.pallet.deck_bottom - 0.1])
+        world.on_cycle(axes_from_fork_in_truck(world.pallet_in_truck @ into, world.mast))
+        assert world.clearances[-1] > 0  # the pallet itself is clear
+        assert world.min_support_clearance < -0.05 and world.min_clearance == world.min_support_clearance
+        summary = pick_summary(world.controller().run(), world)
+    assert summary["collision"] and summary["outcome"] == "collided" and summary["min_support_clearance_mm"] < -50

@@ -7,7 +7,7 @@ import pytest
 
 from agf.axis import AxisLimits
 from agf.errors import ConfigError
-from agf.motion import plan_move
+from agf.motion import MoveSequence, plan_move
 from agf.planner import pick_settings_from_mapping
 
 LIMITS = {
@@ -67,3 +67,19 @@ def test_scaled_limits_keep_the_stroke_and_cut_the_dynamics():
 def test_motion_share_out_of_range_is_a_named_config_error():
     with pytest.raises(ConfigError, match=r"agf.yaml: insertion: motion_share must be in \(0, 1\], got 1.5"):
         pick_settings_from_mapping({"motion_share": 1.5}, "agf.yaml: insertion")
+
+
+def test_a_move_sequence_runs_each_move_from_where_the_last_ended():
+    start = {"lift": 0.6, "reach": 0.3, "tilt": 0.0}
+    rise = plan_move(start, {"lift": 0.9, "tilt": 0.03}, LIMITS)
+    approach = plan_move({**start, "lift": 0.9, "tilt": 0.03}, {"reach": 0.2}, LIMITS)
+    sequence = MoveSequence(start, (rise, approach))
+    assert sequence.names == ("lift", "tilt", "reach")
+    assert sequence.duration == pytest.approx(rise.duration + approach.duration)
+    assert sequence.at(0.0) == pytest.approx(start)
+    assert sequence.at(rise.duration) == pytest.approx({"lift": 0.9, "tilt": 0.03, "reach": 0.3}, abs=1e-9)
+    middle = sequence.at(rise.duration / 2)
+    assert middle["reach"] == 0.3 and 0.6 < middle["lift"] < 0.9  # the reach waits for the lift
+    later = sequence.at(rise.duration + approach.duration / 2)
+    assert later["lift"] == pytest.approx(0.9, abs=1e-9) and 0.2 < later["reach"] < 0.3
+    assert sequence.at(sequence.duration + 1.0) == pytest.approx({"lift": 0.9, "tilt": 0.03, "reach": 0.2}, abs=1e-9)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 
 from agf.axis import AxisLimits
@@ -137,3 +138,44 @@ def test_a_verifying_measurement_that_raises_or_tips_the_pallet_is_refused_not_r
         return
     with pytest.raises(MeasurementError, match=refused + ".*refusing rather than guessing"):
         planner.verify(measurement, plan)
+
+
+def align_path(height: float, ahead: float = 0.3) -> tuple[object, np.ndarray]:
+    """The align move to a level pallet ``height`` (m) above forks at rest, ``ahead`` (m) of their tips, and the
+    lowest corner of the tines' tips along it (x, z in frame P, 100 samples)."""
+    from agf.measurement import PalletMeasurement
+    from agf.planner import PickPlanner
+
+    planner = PickPlanner(MAST, FORKS, PALLET, LIMITS)
+    axes = {"lift": 0.6, "reach": 0.15, "tilt": 0.0}
+    pose = Transform.from_euler(ahead, 0.0, height, 0.0, math.radians(2.0), 0.0)
+    plan = planner.plan(PalletMeasurement(pose, pose, False, 0.001, math.radians(0.03)), axes)
+    assert plan.safe, plan.reason
+    motion = planner.align_motion(axes, plan)
+    corners = np.array([[0.0, y, -FORKS.thickness / 2] for y in (-0.36, 0.36)])
+    truck_in_pallet = plan.pallet_in_truck.inverse()
+    tips = np.array([(truck_in_pallet @ fork_in_truck_from_axes({**axes, **motion.at(t)}, MAST)).apply(corners)
+                     for t in np.linspace(0.0, motion.duration, 100)])
+    return motion, tips[:, :, [0, 2]].min(axis=1)
+
+
+def test_regression_campaign_pick_16_of_seed_7_forks_below_the_pallet_lift_before_they_reach_forward():
+    """Campaign seed 7, pick 16: a pallet 0.34 m above the forks on a dock reaching 0.28 m before its face, the tips
+    0.03 m clear of the dock's edge. The align move ran every axis together and cut 20 mm into the dock (counted
+    since session 39). Below the pallet's underside the tips must not move forward: the forks rise first."""
+    from agf.motion import MoveSequence
+
+    motion, tips = align_path(0.34)
+    assert isinstance(motion, MoveSequence)
+    below = tips[:, 1] < PALLET.deck_bottom + 0.02
+    assert below[0] and not below[-1]
+    assert np.all(tips[below, 0] <= tips[0, 0] + 1e-9)  # no closer to the pallet while under its underside
+
+
+@pytest.mark.parametrize("height", [-0.3, 0.0])
+def test_forks_at_or_above_the_pallet_move_every_axis_together(height):
+    from agf.motion import Trajectory
+
+    motion, tips = align_path(height)
+    assert isinstance(motion, Trajectory)
+    assert np.all(tips[:, 1] >= PALLET.deck_bottom + 0.02)
