@@ -227,6 +227,11 @@ class ForkGeometry:
         if self.spacing <= self.width:
             raise ValueError(f"spacing ({self.spacing} m) must exceed the fork width ({self.width} m)")
 
+    def tip_corners(self) -> np.ndarray:
+        """The corners of both tines' tips (8, 3), fork frame (m): the tips lie at x = 0."""
+        return np.array([[0.0, side * self.spacing / 2 + edge * self.width / 2, height * self.thickness / 2]
+                         for side in (-1, 1) for edge in (-1, 1) for height in (-1, 1)])
+
 
 @dataclass(frozen=True)
 class SearchVolume:

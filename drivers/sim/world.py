@@ -407,8 +407,7 @@ def random_scene(rng: np.random.Generator, base: Scene, forks: ForkGeometry = FO
 def support_gap(scene: Scene, forks: ForkGeometry) -> float:
     """How far (m) the tips of the tines at the scene's fork pose are from the slab its pallet stands on
     (:func:`drivers.sim.render.support_box`); negative inside it."""
-    tips = np.array([[0.0, side * forks.spacing / 2 + edge * forks.width / 2, height * forks.thickness / 2]
-                     for side in (-1, 1) for edge in (-1, 1) for height in (-1, 1)])
+    tips = forks.tip_corners()
     slab = support_box(catalogued(scene.pallet.type), draw_look(scene) if scene.look == "random" else None)
     return float(signed_distances(scene.pallet.in_fork.inverse().apply(tips), slab[None]).min())
 

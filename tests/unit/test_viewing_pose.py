@@ -57,19 +57,29 @@ def test_a_viewing_pose_beyond_the_lift_limits_is_refused():
         view(Transform.from_euler(0.3, 0.0, -0.3, 0.0, 0.0, 0.0), axes)
 
 
-def test_a_refused_measurement_is_worth_a_view_only_when_the_lift_would_move_far_enough():
-    """A refusal for another reason than hidden pockets: a viewing move when level differs by at least
-    insertion.view_min_lift (100 mm), never when the move is impossible (too close, out of limits)."""
+def test_a_refused_measurement_is_worth_a_view_only_when_the_lift_would_rise_far_enough():
+    """A refusal for another reason than hidden pockets: a viewing move when level is at least
+    insertion.view_min_lift (100 mm) higher, never when the move is impossible (too close, out of limits)."""
     from agf.planner import PickPlanner, PickSettings
 
     planner = PickPlanner(MAST, FORKS, PALLET, LIMITS, PickSettings(view_min_lift=0.1))
     axes = {"lift": 0.6, "reach": 0.15, "tilt": 0.0}
-    assert planner.view_helps(axes, Transform.from_euler(0.3, 0.0, -0.25, 0.0, 0.0, 0.0))
     assert planner.view_helps(axes, Transform.from_euler(0.3, 0.0, 0.16, 0.0, 0.0, 0.0))
     assert not planner.view_helps(axes, Transform.from_euler(0.3, 0.0, 0.06, 0.0, 0.0, 0.0))  # nearly level
-    assert not planner.view_helps(axes, Transform.from_euler(0.06, 0.0, -0.3, 0.0, 0.0, 0.0))  # tips too close
-    low = {"lift": 0.2, "reach": 0.15, "tilt": 0.0}
-    assert not planner.view_helps(low, Transform.from_euler(0.3, 0.0, -0.3, 0.0, 0.0, 0.0))  # below the lift's 0
+    assert not planner.view_helps({**axes, "lift": 2.9}, Transform.from_euler(0.3, 0.0, 0.16, 0.0, 0.0, 0.0))  # limit
+
+
+def test_regression_campaign_pick_379_of_seed_7_a_rough_pose_below_the_forks_is_no_reason_to_lower_them():
+    """Pick 379: a pallet 226 mm below the forks was roughly put 478 mm below them, its face's edges agreeing 70 %,
+    and the viewing move lowered the forks 127 mm into the dock under the pallet. A rough pose never lowers them."""
+    from agf.planner import PickPlanner, PickSettings
+
+    planner = PickPlanner(MAST, FORKS, PALLET, LIMITS, PickSettings(view_min_lift=0.1))
+    axes = {"lift": 0.6, "reach": 0.15, "tilt": 0.0}
+    assert not planner.view_helps(axes, Transform.from_euler(0.341, 0.0, -0.478, 0.0, 0.0, 0.0))
+    assert not planner.view_helps(axes, Transform.from_euler(0.3, 0.0, -0.25, 0.0, 0.0, 0.0))
+    view_motion = planner.view_motion(axes, Transform.from_euler(0.3, 0.0, -0.25, 0.0, 0.0, 0.0))  # hidden: lowered
+    assert view_motion.at(view_motion.duration)["lift"] == pytest.approx(0.35, abs=1e-6)
 
 
 def pitched_plan(pitch_deg: float):
