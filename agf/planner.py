@@ -90,9 +90,9 @@ class PickPlanner:
     def align_motion(self, axes_now: Mapping[str, float], plan: InsertionPlan) -> Trajectory | MoveSequence:
         """The move to the plan's aligned axes, all axes together; lift and tilt first, then the rest, where moving
         together would carry the tines' tips forward of where they are while below the pallet's underside: whatever
-        the pallet stands on (a truck bed, a dock) may reach out there, up to the tips (campaign seed 7, pick 16: a
-        dock 0.28 m before the face of a pallet 0.34 m above the forks, its tips 0.03 m clear of the dock's edge;
-        moving together cut 20 mm into it)."""
+        the pallet stands on (a truck bed, a dock) may reach out there, up to the tips (campaign seed 7, pick 259: a
+        dock 0.32 m before the face of a pallet 0.26 m above the forks, their tips 48 mm clear of the dock's edge;
+        moving together cut 32 mm into it)."""
         together = plan_move(axes_now, plan.align, self._motion_limits(), "time")
         if not self._passes_under_the_pallet(together, plan):
             return together

@@ -169,10 +169,41 @@ def align_path(height: float, ahead: float = 0.3) -> tuple[object, np.ndarray]:
     return motion, tips[:, :, [0, 2]].min(axis=1)
 
 
-def test_regression_campaign_pick_16_of_seed_7_forks_below_the_pallet_lift_before_they_reach_forward():
-    """Campaign seed 7, pick 16: a pallet 0.34 m above the forks on a dock reaching 0.28 m before its face, the tips
-    0.03 m clear of the dock's edge. The align move ran every axis together and cut 20 mm into the dock (counted
-    since session 39). Below the pallet's underside the tips must not move forward: the forks rise first."""
+def align_clearance_to_the_slab(index: int, together: bool = False) -> float:
+    """The tines' least clearance (m) to the slab under campaign seed 7's pallet ``index`` (its truck bed or dock,
+    :func:`drivers.sim.render.support_box`) along the align move planned from its true pose at the start axes;
+    ``together``: the move of every axis at once."""
+    from agf.measurement import PalletMeasurement
+    from agf.motion import plan_move
+    from agf.planner import PickPlanner
+    from agf.scene import load_scene
+    from drivers.sim.collision import clearance, tine_surface
+    from drivers.sim.looks import draw_look
+    from drivers.sim.render import support_box
+    from drivers.sim.world import START, campaign_scene
+
+    scene = campaign_scene(load_scene(repo_path("configs/scenes/pick.yaml")), 7, index)
+    pose = scene.pallet.in_fork
+    planner = PickPlanner(MAST, FORKS, PALLET, LIMITS)
+    plan = planner.plan(PalletMeasurement(pose, pose, False, 0.001, math.radians(0.03)), START)
+    assert plan.safe, plan.reason
+    motion = plan_move(START, plan.align, LIMITS) if together else planner.align_motion(START, plan)
+    slab, tines = support_box(PALLET, draw_look(scene))[None], tine_surface(FORKS)
+    truck_in_pallet = plan.pallet_in_truck.inverse()
+    return min(clearance(tines, truck_in_pallet @ fork_in_truck_from_axes({**START, **motion.at(t)}, MAST), slab)
+               for t in np.linspace(0.0, motion.duration, 100))
+
+
+def test_regression_campaign_pick_259_of_seed_7_forks_below_the_pallet_lift_before_they_reach_forward():
+    """Campaign seed 7, pick 259: a pallet 258 mm above the forks and 387 mm ahead, on a dock reaching 320 mm before
+    its face, the tips 48 mm clear of the dock's edge. The align move ran every axis together and cut 32 mm into the
+    dock (unseen until session 39 counted the slab). Below the pallet's underside the tips must not move forward:
+    the forks rise first and pass over the dock."""
+    assert align_clearance_to_the_slab(259, together=True) < -0.02
+    assert align_clearance_to_the_slab(259) > 0.03
+
+
+def test_forks_below_the_pallet_never_move_forward_under_its_underside():
     from agf.motion import MoveSequence
 
     motion, tips = align_path(0.34)
