@@ -253,12 +253,13 @@ def test_regression_campaign_pick_674_of_seed_7_is_not_confirmed_at_a_first_pitc
         result.reason, result.reason
 
 
-def run_campaign_pick(seed: int, index: int, config=CONFIG, logged: bool = False):
-    """Campaign pick ``index`` of ``seed`` in a simulated world: its result, summary (with its log's path when
-    ``logged``, written where ``config`` records) and the true pose of each measurement it accepted."""
+def run_campaign_pick(seed: int, index: int, config=CONFIG, logged: bool = False, as_written: bool = True):
+    """Campaign pick ``index`` of ``seed`` in a simulated world (``as_written``: see conftest's campaign_scene_of):
+    its result, summary (with its log's path when ``logged``, written where ``config`` records) and the true pose of
+    each measurement it accepted."""
     from drivers.sim.world import pick_log, world_clock
 
-    scene = campaign_scene_of(seed, index)
+    scene = campaign_scene_of(seed, index, as_written)
     clock = world_clock(config)
     with contextlib.ExitStack() as stack:
         log = stack.enter_context(pick_log(config, scene, f"pick-{index:03d}", clock)) if logged else None
@@ -268,10 +269,10 @@ def run_campaign_pick(seed: int, index: int, config=CONFIG, logged: bool = False
         return result, summary, world.measured_truths[: len(result.measurements)]
 
 
-def assert_no_measurement_outside_bounds(seed: int, index: int) -> None:
-    """Run campaign pick ``index`` of ``seed``: every measurement it accepts lies within the bounds (pitch
-    0.1 deg, z 5 mm, x 10 mm)."""
-    result, _, truths = run_campaign_pick(seed, index)
+def assert_no_measurement_outside_bounds(seed: int, index: int, as_written: bool = True) -> None:
+    """Run campaign pick ``index`` of ``seed`` (``as_written``: see conftest's campaign_scene_of): every measurement
+    it accepts lies within the bounds (pitch 0.1 deg, z 5 mm, x 10 mm)."""
+    result, _, truths = run_campaign_pick(seed, index, as_written=as_written)
     assert_within_bounds(result.measurements, truths)
 
 
@@ -375,8 +376,14 @@ def test_regression_campaign_picks_of_seed_7_a_deck_clipped_in_one_channel_gives
 # their verifying frames refused; 413, 674 and 764 are refused by their deck edges (check_kept_pitch), 791's face is
 # not confirmed, and 488 (loaded, 0.146 deg off) now inserts at that pitch (clearance 24.1 mm) instead of ending
 # refused.
+# Session 39: the list is every pick of `agf simulate --random 1000 --seed 7` on b8defc9 that accepted a measurement
+# outside the bounds, each as the campaign draws it now. Picks 8, 762 and 808 left it: each accepted after a viewing
+# move down on a rough pose, which is no longer made (they end refused). 129 picks have another look since a look
+# whose truck bed held the tines is drawn again: 993 left the list with its old look, 82 (-0.14 deg), 324 (+0.126),
+# 638 (+0.101, twice) and 660 (-0.127 and -0.155; its old look keeps its own regression test above) joined with
+# their new ones.
 OPEN_CAMPAIGN_WRONG_ACCEPTS = (
-    8, 55, 122, 221, 336, 413, 435, 480, 488, 554, 580, 632, 634, 674, 723, 724, 729, 762, 764, 791, 808, 993,
+    55, 82, 122, 221, 324, 336, 413, 435, 480, 488, 554, 580, 632, 634, 638, 660, 674, 723, 724, 729, 764, 791,
 )
 
 
@@ -452,7 +459,7 @@ def test_regression_campaign_picks_of_seed_7_beside_clipped_light_accept_no_meas
 )
 @pytest.mark.parametrize("index", OPEN_CAMPAIGN_WRONG_ACCEPTS)
 def test_open_campaign_wrong_accepts_of_seed_7(index):
-    assert_no_measurement_outside_bounds(7, index)
+    assert_no_measurement_outside_bounds(7, index, as_written=False)
 
 
 def test_only_runs_one_pick_of_a_campaign_as_the_campaign_draws_it(monkeypatch, tmp_path):
