@@ -56,7 +56,7 @@ def test_campaign_scenes_start_with_the_tines_clear_of_the_slab_their_pallet_sta
 
 def test_regression_campaign_pick_386_of_seed_7_a_dock_holding_the_tines_is_drawn_again():
     """Pick 386's look (seed 1234191223, before session 39) put its truck bed 47 mm past the tines' tips, 144 mm
-    above them: that look is drawn again, and the pose and load stay as drawn."""
+    above them: that look is drawn again."""
     scene = campaign_scene(BASE, 7, 386)
     before = dataclasses.replace(scene, seed=1234191223)
     assert support_gap(before, ForkGeometry()) < -0.04
