@@ -45,10 +45,9 @@ class PickSettings:
     # A viewing move (the forks hid the pallet) keeps the fork tips this far in front of the pallet's
     # front face as the forks move up or down: the refused measurement's pose is only rough.
     view_clearance: float = unit("mm", 0.1)
-    # A measurement refused for any other reason is tried again from level with the pose its search
-    # roughly found when that raises the lift at least this far (never lowers: view_helps): seen from 200-300 mm
-    # above or below,
-    # the edges of half the refused campaign picks were not found, and level is where the camera sees
+    # A measurement refused for any other reason is tried again from level with the pose its search roughly
+    # found when that raises the lift at least this far (never lowers it: view_helps): seen from 200-300 mm above
+    # or below, the edges of half the refused campaign picks were not found, and level is where the camera sees
     # the pallet best (it verifies from there). Closer than this, the view would hardly change.
     view_min_lift: float = unit("mm", 0.1)
     # A verifying measurement that is refused is taken again after the forks withdraw this far (reach) back

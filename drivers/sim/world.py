@@ -115,8 +115,7 @@ class SimulatedWorld:
         # The fork height (m, truck frame) vision.search was narrowed at when it is anchored to the floor (a fleet
         # pick's height), None when it moves with the forks (the configured volume).
         self.search_fork_height: float | None = None
-        self.min_clearance = math.inf  # to the pallet and to the slab it stands on
-        self.min_support_clearance = math.inf
+        self.min_support_clearance = math.inf  # to the slab the pallet stands on (m)
         self.inside = False
         self._tines = tine_surface(config.forks)
         y, ft, fl = config.forks.spacing / 2, config.forks.thickness / 2, config.forks.length
@@ -169,7 +168,12 @@ class SimulatedWorld:
         self.outlines.append(fork_in_pallet.apply(self._outline))
         support = clearance(self._tines, fork_in_pallet, self._support)
         self.min_support_clearance = min(self.min_support_clearance, support)
-        self.min_clearance = min(self.min_clearance, self.clearances[-1], self.min_support_clearance)
+
+    @property
+    def min_clearance(self) -> float:
+        """The smallest clearance (m) of the tines to the pallet and to the slab it stands on so far (inf before any
+        control cycle); negative is a collision."""
+        return min(min(self.clearances, default=math.inf), self.min_support_clearance)
 
     def plots(self, result: PickResult, folder: Path) -> list[str]:
         """The pick's plots in ``folder``: axis trajectories and the side view of the fork path."""
