@@ -19,7 +19,9 @@ When the forks hide the pallet from the camera (a :class:`agf.errors.PalletHidde
 controller does not give up: VIEWING moves the forks, lift only, level with the pallet's pockets
 where the camera sees them past the tines, and the pick acquires and measures again. A measurement
 refused for another reason gets the same move (``unclear``) when its search roughly placed the pallet
-far enough above or below the forks that the view from level differs (:meth:`Planner.view_helps`).
+far enough above or below the forks that the view from level differs (:meth:`Planner.view_helps`), and
+otherwise the forks are raised a little to look once more (:meth:`Planner.look_again_motion`): one viewing
+move a pick, by default.
 One refused for clipped highlights (a :class:`agf.errors.OverexposedError`) is measured again on a frame
 with a shorter exposure (``overexposed``), where the camera can change it; the configured exposure is set
 again when the pick ends.
@@ -132,6 +134,10 @@ class Planner(Protocol):
     def view_helps(self, axes_now: Mapping[str, float], pallet_in_fork: Transform) -> bool:
         """Whether a measurement refused with the pallet roughly at ``pallet_in_fork`` may succeed after
         :meth:`view_motion`."""
+
+    def look_again_motion(self, axes_now: Mapping[str, float], pallet_in_fork: Transform | None) -> Motion:
+        """A move to measure once more from after a refusal that no :meth:`view_motion` helps (``pallet_in_fork``: the
+        refusal's rough pose, or None); :class:`AgfError` when there is none."""
 
     def withdraw_motion(self, axes_now: Mapping[str, float], plan: Any) -> Motion:
         """A move back from the pallet along the plan's insertion line, from where a refused verifying
@@ -287,7 +293,7 @@ class PickController:
             "inserting": self._insert,
         }
         frame: Frame | None = None
-        view_of: Transform | None = None  # the rough pose a viewing move is planned for
+        viewing: Motion | None = None  # the viewing move the last refused first measurement asked for
         replans = 0
         while (state := self._state()) not in ("done", "fault"):
             start, wall_start = self.clock.monotonic(), time.perf_counter()
@@ -299,10 +305,9 @@ class PickController:
                     frame = self._read_frame()
                     event = "acquired"
                 elif state == "measuring":
-                    view_of, event = self._measure_first(result, frame)
+                    viewing, event = self._measure_first(result, frame)
                 elif state == "viewing":
-                    motion = self.planner.view_motion(self._positions(), view_of)
-                    self._follow(motion, state, result)
+                    self._follow(viewing, state, result)
                     event = "viewed"
                 else:
                     event = steps[state](result)
@@ -353,11 +358,10 @@ class PickController:
         self.recorder.measurement(state, frame, measurement)
         return measurement
 
-    def _measure_first(self, result: PickResult, frame: Frame | None) -> tuple[Transform | None, str]:
-        """The first measurement of a pick (again after a viewing move). When the forks hide the pallet, or
-        the measurement is refused where a move level with the pallet's rough pose would change the view
-        (:meth:`Planner.view_helps`), the pose to view it from, as long as the pick has a viewing move left. When
-        clipped highlights refused it, no pose, and the next frame is taken with a shorter exposure."""
+    def _measure_first(self, result: PickResult, frame: Frame | None) -> tuple[Motion | None, str]:
+        """The first measurement of a pick (again after a viewing move). When it is refused, the viewing move to
+        measure again from (:meth:`_viewing_move`), as long as the pick has one left. When clipped highlights refused
+        it, no move, and the next frame is taken with a shorter exposure."""
         prior = result.measurements[-1] if result.measurements else None
         try:
             result.measurements.append(self._measure("measuring", frame, prior))
@@ -366,14 +370,29 @@ class PickController:
                 raise
             return None, "overexposed"
         except MeasurementError as exc:
-            hidden = isinstance(exc, PalletHiddenError)
-            if len(result.views) >= self.config.views or exc.pallet_in_fork is None or not (
-                hidden or self.planner.view_helps(self._positions(), exc.pallet_in_fork)
-            ):
+            if len(result.views) >= self.config.views:
                 raise
+            move = self._viewing_move(exc)
             result.views.append(str(exc))
-            return exc.pallet_in_fork, "hidden" if hidden else "unclear"
+            return move, "hidden" if isinstance(exc, PalletHiddenError) else "unclear"
         return None, "measured"
+
+    def _viewing_move(self, refusal: MeasurementError) -> Motion:
+        """The move after ``refusal``: level with the pallet where the forks hid it or where its rough pose says the
+        view from level differs (:meth:`Planner.view_helps`), else up to look once more
+        (:meth:`Planner.look_again_motion`). Raises ``refusal`` itself when there is none: a pallet the forks hide
+        without a rough pose, or no room to look again."""
+        axes, rough = self._positions(), refusal.pallet_in_fork
+        hidden = isinstance(refusal, PalletHiddenError)
+        if rough is not None and (hidden or self.planner.view_helps(axes, rough)):
+            return self.planner.view_motion(axes, rough)
+        if hidden:
+            raise refusal
+        try:
+            return self.planner.look_again_motion(axes, rough)
+        except AgfError as exc:
+            logger.info("refused, and not looked at again: %s", exc)
+            raise refusal from exc
 
     def _timed(self, fn: Callable[..., Any], state: str, *args: Any) -> Any:
         """``fn(*args)``, refused if its computing took longer than the state's timeout (measured by

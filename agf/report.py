@@ -287,8 +287,9 @@ def _markdown(folder: Path, meta: Mapping[str, Any], results: list[dict[str, Any
     if any("viewing_moves" in r for r in results):
         viewed = sum(r.get("viewing_moves", 0) > 0 for r in results)
         lines += [
-            f"Picks that needed a viewing move (the forks hid the pallet, or a refused measurement's confirmed "
-            f"pose lay well above or below them, so the lift moved level with it to measure again): {viewed}, "
+            f"Picks that needed a viewing move to measure again (the forks hid the pallet, or a refused "
+            f"measurement's confirmed pose lay well above them, and the lift moved level with it; or a refused "
+            f"first measurement had no such move, and the lift rose a little to look once more): {viewed}, "
             f"with {figures['viewing_moves']} moves in all.",
             "",
         ]

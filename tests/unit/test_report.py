@@ -63,7 +63,7 @@ def test_the_report_counts_outcomes_and_tables_reasons(folder):
     assert [row[0] for row in refusals] == ["measuring: the forks hide #% of the pallet's pocket edges from the camera"]
     assert int(refusals[0][1]) == counts["refused"]
     viewed = sum(r["viewing_moves"] > 0 for r in records)
-    assert f"measure again): {viewed}," in markdown and result["viewing_moves"] == viewed
+    assert f"to look once more): {viewed}," in markdown and result["viewing_moves"] == viewed
     withdrawn = [r for r in records if r["withdrawals"] > 0]
     assert f"to measure again: {len(withdrawn)}, of which {sum(r['ok'] for r in withdrawn)} inserted." in markdown
     assert result["withdrawals"] == len(withdrawn) > 0

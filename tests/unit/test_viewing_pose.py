@@ -82,6 +82,31 @@ def test_regression_campaign_pick_379_of_seed_7_a_rough_pose_below_the_forks_is_
     assert view_motion.at(view_motion.duration)["lift"] == pytest.approx(0.35, abs=1e-6)
 
 
+@pytest.mark.parametrize("tilt_deg", [0.0, 3.0])
+def test_looking_again_raises_the_forks_by_the_look_again_lift_and_moves_nothing_else(tilt_deg):
+    from agf.planner import PickPlanner, PickSettings
+
+    planner = PickPlanner(MAST, FORKS, PALLET, LIMITS, PickSettings(look_again_lift=0.1))
+    axes = {"lift": 0.6, "reach": 0.15, "tilt": math.radians(tilt_deg)}
+    for rough in (None, Transform.from_euler(0.3, 0.0, -0.05, 0.0, 0.0, 0.0)):
+        motion = planner.look_again_motion(axes, rough)
+        samples = [motion.at(t) for t in np.linspace(0.0, motion.duration, 20)]
+        assert samples[-1]["lift"] == pytest.approx(0.7, abs=1e-6)
+        assert all(np.diff([s["lift"] for s in samples]) >= -1e-9)  # up all the way
+        assert all(s["reach"] == pytest.approx(0.15) and s["tilt"] == pytest.approx(axes["tilt"]) for s in samples)
+
+
+def test_no_look_again_beyond_the_lift_limit_or_with_a_rough_face_close_to_the_tips():
+    from agf.planner import PickPlanner, PickSettings
+
+    planner = PickPlanner(MAST, FORKS, PALLET, LIMITS, PickSettings(look_again_lift=0.1, view_clearance=0.1))
+    axes = {"lift": 0.6, "reach": 0.15, "tilt": 0.0}
+    with pytest.raises(AgfError, match=r"no room to raise the forks and look again: the lift would be at 3050 mm"):
+        planner.look_again_motion({**axes, "lift": 2.95}, None)
+    with pytest.raises(AgfError, match=r"roughly 60 mm in front of the tips.*at least 100 mm"):
+        planner.look_again_motion(axes, Transform.from_euler(0.06, 0.0, 0.1, 0.0, 0.0, 0.0))
+
+
 def pitched_plan(pitch_deg: float):
     """A planner and its plan for a pallet 0.4 m ahead of forks at rest, pitched ``pitch_deg``."""
     from agf.measurement import PalletMeasurement
