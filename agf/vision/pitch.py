@@ -174,6 +174,9 @@ class PitchEvidence:
         grey (NaN for an edge not found).
     clipped : tuple of float
         Each edge's share of points whose highlight is clipped (:data:`CLIPPED` or more; NaN for an edge not found).
+    shown : float
+        ``ratio`` counting the edge points beside light clipped in every channel, which no channel places: what
+        the edges would show with a shorter exposure (0 where no point was clipped so).
     overexposed : bool
         Not valid because the highlights beside the edges are clipped: a shorter exposure may find the edges.
     """
@@ -195,6 +198,7 @@ class PitchEvidence:
     lead: float = math.nan
     highlights: tuple[float, ...] = ()
     clipped: tuple[float, ...] = ()
+    shown: float = 0.0
     overexposed: bool = False
 
     @property
@@ -222,6 +226,12 @@ def unloaded_evidence(
     ]
     pair = _evidence("unloaded", gray, camera, camera_in_fork, pallet_in_fork, segments, 0, config, anchored=True,
                      colour=colour)
+    if not pair.valid and pair.ratio < config.min_ratio <= pair.shown:
+        # Light clipped in every channel beside the edges hid what a shorter exposure shows (campaign seed 7, pick 42:
+        # a white deck under three lamps, its edges over 22 % of their length in colour, 90 % in the grey)
+        return _refused(pair, f"the top deck is overexposed beside its edges: they show over {pair.ratio:.0%} of their "
+                        f"length, over {pair.shown:.0%} with the points beside light clipped in every channel "
+                        f"(need {config.min_ratio:.0%}); lower the camera's exposure", overexposed=True)
     if not pair.valid:
         return pair
     if pair.sigma > config.edge_max_sigma:
@@ -736,14 +746,16 @@ def _evidence(
 
 
 class _EdgePoints(NamedTuple):
-    """Edge points of a panorama (:func:`_edge_points`): directions (N, 3), strong (N,), columns and rows (N,), and
-    the highlight beside each (N,)."""
+    """Edge points of a panorama (:func:`_edge_points`): directions (N, 3), strong (N,), columns and rows (N,), the
+    highlight beside each (N,), and which are ``blinded`` (N,): beside light that clips where no channel shows the
+    edge (never strong, never an edge's support; what the edge would show with a shorter exposure)."""
 
     directions: Array
     strong: NDArray[np.bool_]
     columns: Array
     rows: Array
     highlight: Array
+    blinded: NDArray[np.bool_]
 
 
 def _evidences(
@@ -808,7 +820,8 @@ class _Search:
 class _Edge(NamedTuple):
     """One edge of a pair (:func:`_edge`): its line (the fit along the reach where there was one), a rival line
     beside it that the anchor does not rule out, its tilt (:func:`tilt_sigma`), its support ratio, the median
-    highlight beside its points (:func:`edge_highlights`) and their share clipped, and whether the anchor ``pinned``
+    highlight beside its points (:func:`edge_highlights`) and their share clipped, its support ratio counting the
+    points clipped light blinded (:func:`_shown_with_clipped`), and whether the anchor ``pinned``
     the line among others (:func:`_line_through`, or a rival through the anchor; the stronger line is then the rival,
     which the pitch must agree with)."""
 
@@ -818,6 +831,7 @@ class _Edge(NamedTuple):
     ratio: float
     highlight: float
     clipped: float
+    shown: float  # the ratio with the points blinded by clipped light (_shown_with_clipped), at least ``ratio``
     pinned: bool = False
 
 
@@ -825,8 +839,10 @@ def _edge(search: _Search, segment: Array, far: Array, region: Array, reach_regi
     """The edge along ``segment`` (camera frame) in its predicted ``region``, followed along ``far`` (its
     ``reach_region``) for its fit."""
     panorama, config = search.panorama, search.config
-    directions, strong, columns, rows, highlights = search.points
+    directions, strong, columns, rows, highlights, blinded = search.points
     inside = _inside(region, columns, rows)
+    blind = inside & blinded
+    inside &= ~blinded
     lon = (
         panorama.angles_from_pixels(region[None, [0, 2]])[0][0],
         panorama.angles_from_pixels(region[None, [1, 2]])[0][0],
@@ -835,8 +851,10 @@ def _edge(search: _Search, segment: Array, far: Array, region: Array, reach_regi
     fitted = corrected[strong[inside]]
     ones = np.ones(len(fitted))
     line = _line(panorama, fitted, ones, lon, config)
+    length = region[3] - region[2]
+    shown = _shown_with_clipped(search, segment, corrected, rows[inside], blind, lon, length)
     if line is None:
-        return _Edge(None, None, None, 0.0, math.nan, math.nan)
+        return _Edge(None, None, None, 0.0, math.nan, math.nan, shown)
     rival = _rival_nearby(panorama, fitted, ones, line, lon, config)
     anchor = _unit(segment[:1])[0] if search.anchored else None
     pinned = False
@@ -853,11 +871,29 @@ def _edge(search: _Search, segment: Array, far: Array, region: Array, reach_regi
     fit = refine_line(grown, np.ones(len(grown)), line.normal, config.inlier_tolerance * panorama.pixel_size())
     tilt = tilt_sigma(grown[fit.inliers] if fit is not None else fitted[line.inliers],
                       fit.normal if fit is not None else line.normal)
-    length = max(region[3] - region[2], 1.0)
-    ratio = min(_support(line, corrected, rows[inside], panorama, config) / length, 1.0)
+    ratio = min(_support(line, corrected, rows[inside], panorama, config) / max(length, 1.0), 1.0)
     beside = highlights[inside][strong[inside]][line.inliers]
     return _Edge(fit if fit is not None else line, rival, tilt, ratio, float(np.median(beside)),
-                 float(np.mean(beside >= CLIPPED)), pinned)
+                 float(np.mean(beside >= CLIPPED)), max(shown, ratio), pinned)
+
+
+def _shown_with_clipped(
+    search: _Search, segment: Array, corrected: Array, rows: Array, blind: NDArray[np.bool_],
+    lon: tuple[float, float], length: float,
+) -> float:
+    """The support ratio an edge would have with its ``blind`` points (beside light clipped in every channel; a mask
+    of the search's points) taken as its own: of the line through them and the edge's other points (``corrected``,
+    with their ``rows``). 0 where no point is blinded."""
+    if not blind.any():
+        return 0.0
+    panorama, config = search.panorama, search.config
+    both = np.concatenate([corrected, _from_reference_viewpoint(search.camera, search.points.directions[blind],
+                                                                segment)])
+    line = _line(panorama, both, np.ones(len(both)), lon, config)
+    if line is None:
+        return 0.0
+    return min(_support(line, both, np.concatenate([rows, search.points.rows[blind]]), panorama, config)
+               / max(length, 1.0), 1.0)
 
 
 def _pair_evidence(
@@ -872,7 +908,8 @@ def _pair_evidence(
     nan = np.full(3, np.nan)
     found = functools.partial(PitchEvidence, search.hypothesis, ratio, panorama=search.panorama, regions=regions,
                               lines=lines, face_points=search.face_points,
-                              highlights=tuple(e.highlight for e in edges), clipped=tuple(e.clipped for e in edges))
+                              highlights=tuple(e.highlight for e in edges), clipped=tuple(e.clipped for e in edges),
+                              shown=float(min(e.shown for e in edges)))
     if len(lines) < 2 or ratio < config.min_ratio:
         return found(False, math.nan, nan)
     pitches = []
@@ -1105,7 +1142,8 @@ def _edge_points(
 
     Directions (camera frame) are computed only for maxima in one of the ``areas`` (regions as
     :func:`_region` gives them), NaN elsewhere: the rest of the panorama only sets the threshold. With the
-    ``colour`` panorama, maxima beside clipped light are found again in it (:func:`unclipped_edge_columns`).
+    ``colour`` panorama, maxima beside clipped light are found again in it (:func:`unclipped_edge_columns`), and
+    those no channel finds are returned ``blinded``, never strong.
     """
     gx = _row_gradient(image)
     gx[~cv2.erode(valid.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)] = 0.0
@@ -1121,17 +1159,18 @@ def _edge_points(
     c = gx[rows, cols]
     columns, rows = cols + _peak_offset(gx[rows, cols - 1], c, gx[rows, cols + 1]), rows.astype(float)
     needed = np.any([_inside(area, columns, rows) for area in areas], axis=0)
+    blinded = np.zeros(len(rows), dtype=bool)
     if colour is not None:
-        columns[needed] = unclipped_edge_columns(colour, columns[needed], rows[needed], threshold)
-        kept = ~np.isnan(columns)
-        columns, rows, c, needed = columns[kept], rows[kept], c[kept], needed[kept]
+        found = unclipped_edge_columns(colour, columns[needed], rows[needed], threshold)
+        blinded[needed] = np.isnan(found)  # kept at the grey's column, which is all that shows where they are
+        columns[needed] = np.where(blinded[needed], columns[needed], found)
     directions = np.full((len(rows), 3), np.nan)
     directions[needed] = panorama.directions_from_pixels(np.stack([columns[needed], rows[needed]], axis=1))
     # The highlight is the brightest channel's: one clipped channel moves the grey's gradient maxima outwards as a
     # clipped grey does (a red deck at R 255, grey 170-200, its edges' maxima 0.5-0.8 px outside the outline), and
     # behind a JPEG no channel finds the edge again (unclipped_edge_columns): its fine detail is the luma's
     highlights = edge_highlights(image if colour is None else colour, columns, rows, needed)
-    return directions, c > threshold, columns, rows, highlights
+    return directions, (c > threshold) & ~blinded, columns, rows, highlights, blinded
 
 
 HIGHLIGHT_REACH = 4  # panorama pixels either side of an edge point along its row

@@ -242,6 +242,25 @@ def test_a_deck_clipped_beside_its_edges_is_measured_again_with_a_shorter_exposu
         assert abs(est["pitch_deg"] - gt["pitch_deg"]) <= 0.1, (est, gt)
 
 
+def test_regression_a_deck_edge_blinded_by_light_clipped_in_every_channel_asks_for_a_shorter_exposure():
+    """Campaign pick 42 of seed 7: a white deck under three lamps, clipped in every channel beside its edges. No
+    channel placed those edge points, so they were dropped, the edges showed over 22 % of their length and the pick
+    was refused ("no pitch: neither the deck edges ... nor the load edges were found") with no exposure change. The
+    points are now counted as what a shorter exposure would show (87 %): the frame is refused as overexposed, measured
+    again at 0.6 of the exposure within the bounds, and the pick inserts."""
+    scene = campaign_scene_of(7, 42)
+    with SimulatedWorld(CONFIG, scene) as world:
+        result = world.controller().run()
+        summary = pick_summary(result, world)
+        truths = world.measured_truths[: len(result.measurements)]
+    assert result.ok, result.reason
+    assert len(result.exposures) == 1, result.exposures
+    assert "with the points beside light clipped in every channel" in result.exposures[0], result.exposures
+    assert summary["exposure_changes"] == 1 and not summary["collision"]
+    for measurement, truth in zip(result.measurements, truths, strict=True):
+        assert abs(measurement.pallet_in_fork.euler[1] - truth.euler[1]) <= math.radians(0.1)
+
+
 def test_a_verifying_frame_whose_pitch_is_refused_is_confirmed_at_the_measured_pitch_and_the_pick_inserts(tmp_path):
     """Campaign pick 47 of seed 7: an unloaded pallet on a truck bed, pitched 1.53 deg; its first measurement is
     within the bounds, and its verifying frames (from the aligned forks and from 50 mm back, where the reach has no

@@ -17,6 +17,7 @@ from agf.vision.pitch import (
     HIGHLIGHT_REACH,
     PitchConfig,
     PitchEvidence,
+    _edge_points,
     _line,
     _line_through,
     _panorama_over,
@@ -227,6 +228,26 @@ def test_edges_beside_clipping_in_every_channel_are_dropped_and_those_away_from_
     unclipped = _overexposed_step(30.3, (150.0, 180.0, 200.0))
     columns = np.array([_grey_edge_column(unclipped), 12.0])
     assert np.array_equal(unclipped_edge_columns(unclipped, columns, np.array([4.0, 4.0]), threshold=10.0), columns)
+
+
+def test_edge_points_beside_light_clipped_in_every_channel_are_blinded_not_dropped_and_never_strong():
+    """Campaign seed 7 pick 42 (session 41): the deck's edge points beside light clipped in every channel were
+    dropped, so the edges showed over 22 % of their length and the refusal asked for no shorter exposure. They are
+    kept, ``blinded``: never strong (no line is fitted to them), counted only for what a shorter exposure shows."""
+    from agf.vision.panorama import Panorama
+
+    panorama = Panorama.around(np.array([0.0, 0.0, 1.0]), 64, 8)
+    valid = np.ones((8, 64), bool)
+    area = [np.array([2.0, 61.0, 0.0, 7.0])]
+    for gains, blinded in (((900.0, 900.0, 900.0), True), ((150.0, 900.0, 1400.0), False)):
+        colour = _overexposed_step(30.3, gains)
+        grey = colour.mean(axis=2).astype(np.float32)
+        directions, strong, columns, rows, highlights, found_blinded = _edge_points(grey, valid, panorama, area,
+                                                                                    colour)
+        at_edge = np.abs(columns - 30.3) < 2.0
+        assert at_edge.any() and np.all(found_blinded[at_edge] == blinded), (gains, columns[at_edge])
+        assert not np.any(strong & found_blinded)
+        assert np.all(np.isfinite(directions[at_edge]))  # placed where the grey shows them, for the count
 
 
 def test_an_edge_point_reads_the_brightest_grey_within_reach_along_its_row_only():
