@@ -108,6 +108,11 @@ class PitchConfig:
     # 31 -0.11; pick 360 at 0.6 of its light -0.15 with 36 % of an edge clipped, medians 227 and 218) and 21 more of
     # the 272 within it. Since session 35 the controller answers both with a shorter exposure, not a refused pick.
     max_deck_clipped: float = 0.2
+    # Deck edges not found over min_ratio of their length with this share of the top deck clipped in every channel
+    # are refused as overexposed (deck_top_clipped): a deck and a floor both clipped show no edge to find, and a
+    # shorter exposure does (campaign seed 7, pick 214: 72 % clipped, refused for no pitch; at 0.36 of its light
+    # measured 0.08 deg off).
+    max_deck_top_clipped: float = 0.5
     # A load hides the top deck's side edges: where the loaded hypothesis is taken, the unloaded one found them over
     # at most 26 % of their length on 62 right loaded measurements (random looks, campaign first frames). Rack
     # uprights behind an unloaded pallet, taken for a load's edges with the deck's edges found over 42 %, gave the
@@ -226,12 +231,9 @@ def unloaded_evidence(
     ]
     pair = _evidence("unloaded", gray, camera, camera_in_fork, pallet_in_fork, segments, 0, config, anchored=True,
                      colour=colour)
-    if not pair.valid and pair.ratio < config.min_ratio <= pair.shown:
-        # Light clipped in every channel beside the edges hid what a shorter exposure shows (campaign seed 7, pick 42:
-        # a white deck under three lamps, its edges over 22 % of their length in colour, 90 % in the grey)
-        return _refused(pair, f"the top deck is overexposed beside its edges: they show over {pair.ratio:.0%} of their "
-                        f"length, over {pair.shown:.0%} with the points beside light clipped in every channel "
-                        f"(need {config.min_ratio:.0%}); lower the camera's exposure", overexposed=True)
+    if not pair.valid and pair.ratio < config.min_ratio:
+        top = deck_top_clipped(gray if colour is None else colour, camera, camera_in_fork, pallet, pallet_in_fork)
+        return _blinded(pair, top, config)
     if not pair.valid:
         return pair
     if pair.sigma > config.edge_max_sigma:
@@ -247,6 +249,42 @@ def unloaded_evidence(
     else:
         return pair
     return _refused(pair, note)
+
+
+def _blinded(pair: PitchEvidence, top_clipped: float, config: PitchConfig) -> PitchEvidence:
+    """The deck edges ``pair``, found over too little of their length, refused as overexposed where clipped light
+    may be why: counted with their points beside light clipped in every channel (:attr:`PitchEvidence.shown`) they
+    reach :attr:`PitchConfig.min_ratio`, or ``top_clipped`` of the top deck (:func:`deck_top_clipped`) is at least
+    :attr:`PitchConfig.max_deck_top_clipped`, where a deck and a background both clipped show no edge at all.
+    Campaign seed 7, pick 42: a white deck under three lamps showed its edges over 22 % of their length in colour,
+    87 % with the blinded points, and was refused for no pitch, with no shorter exposure asked for."""
+    if pair.shown < config.min_ratio and top_clipped < config.max_deck_top_clipped:
+        return pair
+    return _refused(pair, f"the top deck is overexposed: its edges show over {pair.ratio:.0%} of their length, "
+                    f"{pair.shown:.0%} with the points beside light clipped in every channel (need "
+                    f"{config.min_ratio:.0%}), and {top_clipped:.0%} of its top is clipped in every channel (at most "
+                    f"{config.max_deck_top_clipped:.0%}); lower the camera's exposure", overexposed=True)
+
+
+def deck_top_clipped(
+    image: NDArray, camera: CameraModel, camera_in_fork: Transform, pallet: PalletType, pallet_in_fork: Transform,
+    samples: int = 12,
+) -> float:
+    """The share of the top deck that ``image`` (colour (H, W, 3) or grey (H, W), uint8) shows clipped in every
+    channel (:data:`CLIPPED` or more), sampled on a grid ``samples`` x ``samples`` 50 mm inside its outline at the
+    pose ``pallet_in_fork``; 0 where the camera is not above the deck or sees none of the grid."""
+    pallet_in_camera = camera_in_fork.inverse() @ pallet_in_fork
+    if pallet_in_camera.inverse().translation[2] <= pallet.deck_top:
+        return 0.0
+    x = np.linspace(0.05, pallet.length - 0.05, samples)
+    y = np.linspace(0.05 - pallet.width / 2, pallet.width / 2 - 0.05, samples)
+    grid = np.stack(np.meshgrid(x, y), axis=-1).reshape(-1, 2)
+    pixels, seen = camera.project(pallet_in_camera.apply(np.c_[grid, np.full(len(grid), pallet.deck_top)]))
+    if not seen.any():
+        return 0.0
+    columns, rows = np.round(pixels[seen]).astype(int).T
+    levels = image[np.clip(rows, 0, image.shape[0] - 1), np.clip(columns, 0, image.shape[1] - 1)]
+    return float(np.mean((levels if levels.ndim == 1 else levels.min(axis=1)) >= CLIPPED))
 
 
 def pose_from_deck_edges(

@@ -250,6 +250,27 @@ def test_edge_points_beside_light_clipped_in_every_channel_are_blinded_not_dropp
         assert np.all(np.isfinite(directions[at_edge]))  # placed where the grey shows them, for the count
 
 
+def test_the_top_deck_clipped_in_every_channel_is_counted_only_where_the_camera_looks_down_on_it():
+    """PitchConfig.max_deck_top_clipped (campaign seed 7, pick 214): a deck and a floor both clipped show no edge."""
+    from agf.camera import load_camera
+    from agf.paths import repo_path
+    from agf.vision.pitch import deck_top_clipped
+
+    camera = load_camera(repo_path("configs/cameras/thetav_front.txt"))
+    below = Transform.from_euler(0.4, 0.0, -0.3)  # the deck 0.3 m below the forks, the camera above it
+    image = np.full((camera.height, camera.width, 3), 255, np.uint8)
+    assert deck_top_clipped(image, camera, CAMERA_IN_FORK, PALLET, below) == 1.0
+    image[..., 0] = 200  # blue not clipped: some channel still shows the deck
+    assert deck_top_clipped(image, camera, CAMERA_IN_FORK, PALLET, below) == 0.0
+    half = np.full((camera.height, camera.width), 255, np.uint8)
+    pallet_in_camera = CAMERA_IN_FORK.inverse() @ below
+    pixels, _ = camera.project(pallet_in_camera.apply([[PALLET.length / 2, 0.0, PALLET.deck_top]]))
+    half[int(pixels[0, 1]):] = 100  # the deck's near half (lower in the image) is not clipped
+    assert 0.3 < deck_top_clipped(half, camera, CAMERA_IN_FORK, PALLET, below) < 0.7
+    level = Transform.from_euler(0.4, 0.0, CAMERA_IN_FORK.translation[2] - PALLET.deck_top + 0.05)
+    assert deck_top_clipped(np.full_like(image, 255), camera, CAMERA_IN_FORK, PALLET, level) == 0.0
+
+
 def test_an_edge_point_reads_the_brightest_grey_within_reach_along_its_row_only():
     """PitchConfig.max_deck_highlight refuses deck edges beside grey this close to 255 (campaign seed 7 pick 38)."""
     image = np.full((3, 40), 100.0, np.float32)
