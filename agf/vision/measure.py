@@ -690,6 +690,13 @@ def _choose(evidence: dict[str, PitchEvidence], config: PitchConfig) -> PitchEvi
     if noted:
         error = OverexposedError if evidence["unloaded"].overexposed else MeasurementError
         raise error(f"no trustworthy pitch: {'; '.join(noted)}; refusing rather than guessing")
+    deck, load = evidence["unloaded"], evidence["loaded"]
+    if deck.top_clipped >= config.max_deck_top_clipped and load.ratio < config.min_ratio:
+        raise OverexposedError(
+            f"no pitch: the top deck is overexposed, {deck.top_clipped:.0%} of it clipped in every channel (at most "
+            f"{config.max_deck_top_clipped:.0%}), and neither its edges (ratio {deck.ratio:.2f}) nor a load's (ratio "
+            f"{load.ratio:.2f}) were found; lower the camera's exposure"
+        )
     ambiguous = [name for name, e in evidence.items() if e.ambiguous]
     if ambiguous:
         raise MeasurementError(

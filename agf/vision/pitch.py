@@ -108,10 +108,12 @@ class PitchConfig:
     # 31 -0.11; pick 360 at 0.6 of its light -0.15 with 36 % of an edge clipped, medians 227 and 218) and 21 more of
     # the 272 within it. Since session 35 the controller answers both with a shorter exposure, not a refused pick.
     max_deck_clipped: float = 0.2
-    # Deck edges not found over min_ratio of their length with this share of the top deck clipped in every channel
-    # are refused as overexposed (deck_top_clipped): a deck and a floor both clipped show no edge to find, and a
-    # shorter exposure does (campaign seed 7, pick 214: 72 % clipped, refused for no pitch; at 0.36 of its light
-    # measured 0.08 deg off).
+    # Neither deck edges nor load edges found, with this share of the top deck clipped in every channel: refused as
+    # overexposed (deck_top_clipped), as a deck and a floor both clipped show no edge to find and a shorter exposure
+    # does (campaign seed 7, pick 214: 72 % clipped, refused for no pitch; at 0.36 of its light measured 0.08 deg
+    # off). Not where a load's edges were found: the clipped top is then the load's, and measured again darker the
+    # load's edges gave a pitch 0.185 deg off and were accepted (pick 205); of 12 loaded picks that took a shorter
+    # exposure so, no other inserted.
     max_deck_top_clipped: float = 0.5
     # A load hides the top deck's side edges: where the loaded hypothesis is taken, the unloaded one found them over
     # at most 26 % of their length on 62 right loaded measurements (random looks, campaign first frames). Rack
@@ -182,6 +184,9 @@ class PitchEvidence:
     shown : float
         ``ratio`` counting the edge points beside light clipped in every channel, which no channel places: what
         the edges would show with a shorter exposure (0 where no point was clipped so).
+    top_clipped : float
+        Unloaded, its edges found over less than the configured ``min_ratio``: the share of the top deck clipped in
+        every channel (:func:`deck_top_clipped`; 0 otherwise).
     overexposed : bool
         Not valid because the highlights beside the edges are clipped: a shorter exposure may find the edges.
     """
@@ -204,6 +209,7 @@ class PitchEvidence:
     highlights: tuple[float, ...] = ()
     clipped: tuple[float, ...] = ()
     shown: float = 0.0
+    top_clipped: float = 0.0
     overexposed: bool = False
 
     @property
@@ -233,7 +239,7 @@ def unloaded_evidence(
                      colour=colour)
     if not pair.valid and pair.ratio < config.min_ratio:
         top = deck_top_clipped(gray if colour is None else colour, camera, camera_in_fork, pallet, pallet_in_fork)
-        return _blinded(pair, top, config)
+        return _blinded(dataclasses.replace(pair, top_clipped=top), config)
     if not pair.valid:
         return pair
     if pair.sigma > config.edge_max_sigma:
@@ -251,19 +257,16 @@ def unloaded_evidence(
     return _refused(pair, note)
 
 
-def _blinded(pair: PitchEvidence, top_clipped: float, config: PitchConfig) -> PitchEvidence:
-    """The deck edges ``pair``, found over too little of their length, refused as overexposed where clipped light
-    may be why: counted with their points beside light clipped in every channel (:attr:`PitchEvidence.shown`) they
-    reach :attr:`PitchConfig.min_ratio`, or ``top_clipped`` of the top deck (:func:`deck_top_clipped`) is at least
-    :attr:`PitchConfig.max_deck_top_clipped`, where a deck and a background both clipped show no edge at all.
+def _blinded(pair: PitchEvidence, config: PitchConfig) -> PitchEvidence:
+    """The deck edges ``pair``, found over too little of their length, refused as overexposed where their points
+    beside light clipped in every channel make up :attr:`PitchConfig.min_ratio` (:attr:`PitchEvidence.shown`).
     Campaign seed 7, pick 42: a white deck under three lamps showed its edges over 22 % of their length in colour,
-    87 % with the blinded points, and was refused for no pitch, with no shorter exposure asked for."""
-    if pair.shown < config.min_ratio and top_clipped < config.max_deck_top_clipped:
+    87 % with those points, and was refused for no pitch, with no shorter exposure asked for."""
+    if pair.shown < config.min_ratio:
         return pair
-    return _refused(pair, f"the top deck is overexposed: its edges show over {pair.ratio:.0%} of their length, "
-                    f"{pair.shown:.0%} with the points beside light clipped in every channel (need "
-                    f"{config.min_ratio:.0%}), and {top_clipped:.0%} of its top is clipped in every channel (at most "
-                    f"{config.max_deck_top_clipped:.0%}); lower the camera's exposure", overexposed=True)
+    return _refused(pair, f"the top deck is overexposed beside its edges: they show over {pair.ratio:.0%} of their "
+                    f"length, over {pair.shown:.0%} with the points beside light clipped in every channel (need "
+                    f"{config.min_ratio:.0%}); lower the camera's exposure", overexposed=True)
 
 
 def deck_top_clipped(
@@ -889,7 +892,7 @@ def _edge(search: _Search, segment: Array, far: Array, region: Array, reach_regi
     fitted = corrected[strong[inside]]
     ones = np.ones(len(fitted))
     line = _line(panorama, fitted, ones, lon, config)
-    length = region[3] - region[2]
+    length = max(region[3] - region[2], 1.0)  # panorama rows
     shown = _shown_with_clipped(search, segment, corrected, rows[inside], blind, lon, length)
     if line is None:
         return _Edge(None, None, None, 0.0, math.nan, math.nan, shown)
@@ -909,7 +912,7 @@ def _edge(search: _Search, segment: Array, far: Array, region: Array, reach_regi
     fit = refine_line(grown, np.ones(len(grown)), line.normal, config.inlier_tolerance * panorama.pixel_size())
     tilt = tilt_sigma(grown[fit.inliers] if fit is not None else fitted[line.inliers],
                       fit.normal if fit is not None else line.normal)
-    ratio = min(_support(line, corrected, rows[inside], panorama, config) / max(length, 1.0), 1.0)
+    ratio = min(_support(line, corrected, rows[inside], panorama, config) / length, 1.0)
     beside = highlights[inside][strong[inside]][line.inliers]
     return _Edge(fit if fit is not None else line, rival, tilt, ratio, float(np.median(beside)),
                  float(np.mean(beside >= CLIPPED)), max(shown, ratio), pinned)
@@ -921,7 +924,7 @@ def _shown_with_clipped(
 ) -> float:
     """The support ratio an edge would have with its ``blind`` points (beside light clipped in every channel; a mask
     of the search's points) taken as its own: of the line through them and the edge's other points (``corrected``,
-    with their ``rows``). 0 where no point is blinded."""
+    with their ``rows``) over the edge's ``length`` in panorama rows. 0 where no point is blinded."""
     if not blind.any():
         return 0.0
     panorama, config = search.panorama, search.config
@@ -930,8 +933,8 @@ def _shown_with_clipped(
     line = _line(panorama, both, np.ones(len(both)), lon, config)
     if line is None:
         return 0.0
-    return min(_support(line, both, np.concatenate([rows, search.points.rows[blind]]), panorama, config)
-               / max(length, 1.0), 1.0)
+    return min(_support(line, both, np.concatenate([rows, search.points.rows[blind]]), panorama, config) / length,
+               1.0)
 
 
 def _pair_evidence(

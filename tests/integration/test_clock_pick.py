@@ -264,19 +264,31 @@ def test_regression_a_deck_edge_blinded_by_light_clipped_in_every_channel_asks_f
 def test_regression_a_deck_clipped_with_the_floor_behind_it_asks_for_a_shorter_exposure_though_no_edge_shows():
     """Campaign pick 214 of seed 7: a deck and the floor behind it both clipped in every channel, so neither edge
     showed at all (no point to count as blinded) and the pick was refused ("no pitch: neither the deck edges ... nor
-    the load edges were found"). 72 % of the deck's top is clipped (PitchConfig.max_deck_top_clipped): the frame is
-    refused as overexposed, at 0.6 of the exposure again (the deck's edges now beside clipped light), and measured
-    within the bounds at 0.36; the pick inserts."""
+    the load edges were found"). 72 % of the deck's top is clipped (PitchConfig.max_deck_top_clipped) and no load's
+    edges were found either: the frame is refused as overexposed, at 0.6 of the exposure again (the deck's edges now
+    beside clipped light), and measured within the bounds at 0.36; the pick inserts."""
     scene = campaign_scene_of(7, 214)
     with SimulatedWorld(CONFIG, scene) as world:
         result = world.controller().run()
         summary = pick_summary(result, world)
         truths = world.measured_truths[: len(result.measurements)]
     assert result.ok, result.reason
-    assert len(result.exposures) == 2 and "of its top is clipped in every channel" in result.exposures[0]
+    assert len(result.exposures) == 2 and "of it clipped in every channel" in result.exposures[0], result.exposures
     assert summary["exposure_changes"] == 2 and not summary["collision"]
     for measurement, truth in zip(result.measurements, truths, strict=True):
         assert abs(measurement.pallet_in_fork.euler[1] - truth.euler[1]) <= math.radians(0.1)
+
+
+def test_regression_campaign_pick_205_of_seed_7_a_clipped_load_top_is_not_measured_again_darker():
+    """Campaign pick 205 of seed 7: a loaded pallet whose load's top is clipped where the deck's top would be. Taken
+    for a clipped deck (session 41's first campaign), the frame was refused as overexposed, and at 0.6 of the
+    exposure the load's edges gave a pitch 0.185 deg off that was accepted and inserted. A load whose edges were
+    found is not a clipped deck: the frame is refused as before (its load's edges and face disagree)."""
+    scene = campaign_scene_of(7, 205)
+    with SimulatedWorld(CONFIG, scene) as world:
+        result = world.controller().run()
+    assert not result.ok and "the load's edges give a pitch of" in result.reason, result.reason
+    assert result.exposures == [] and result.measurements == []
 
 
 def test_a_verifying_frame_whose_pitch_is_refused_is_confirmed_at_the_measured_pitch_and_the_pick_inserts(tmp_path):

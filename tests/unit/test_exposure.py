@@ -131,3 +131,23 @@ def _volume():
     from agf.config import SearchVolume
 
     return SearchVolume()
+
+
+def _hypothesis(name: str, ratio: float, top_clipped: float = 0.0):
+    from agf.vision.pitch import PitchEvidence
+
+    return PitchEvidence(name, ratio, False, float("nan"), np.full(3, np.nan), None, [], [], top_clipped=top_clipped)
+
+
+@pytest.mark.parametrize("top, load, overexposed", [(0.72, 0.19, True), (0.4, 0.19, False), (0.72, 0.6, False)])
+def test_a_clipped_top_deck_is_overexposed_only_where_no_load_edges_were_found(top, load, overexposed):
+    """PitchConfig.max_deck_top_clipped: neither edges found under a deck 72 % clipped (campaign seed 7 pick 214)
+    asks for a shorter exposure; a load's edges found mean the clipped top is the load's (pick 205 was accepted 0.185
+    deg off so), and a deck 40 % clipped is no reason."""
+    from agf.vision.measure import _choose
+    from agf.vision.pitch import PitchConfig
+
+    evidence = {"unloaded": _hypothesis("unloaded", 0.2, top), "loaded": _hypothesis("loaded", load)}
+    with pytest.raises(MeasurementError) as refusal:
+        _choose(evidence, PitchConfig())
+    assert isinstance(refusal.value, OverexposedError) == overexposed, refusal.value
