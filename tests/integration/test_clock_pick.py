@@ -248,17 +248,7 @@ def test_regression_a_deck_edge_blinded_by_light_clipped_in_every_channel_asks_f
     was refused ("no pitch: neither the deck edges ... nor the load edges were found") with no exposure change. The
     points are now counted as what a shorter exposure would show (87 %): the frame is refused as overexposed, measured
     again at 0.6 of the exposure within the bounds, and the pick inserts."""
-    scene = campaign_scene_of(7, 42)
-    with SimulatedWorld(CONFIG, scene) as world:
-        result = world.controller().run()
-        summary = pick_summary(result, world)
-        truths = world.measured_truths[: len(result.measurements)]
-    assert result.ok, result.reason
-    assert len(result.exposures) == 1, result.exposures
-    assert "with the points beside light clipped in every channel" in result.exposures[0], result.exposures
-    assert summary["exposure_changes"] == 1 and not summary["collision"]
-    for measurement, truth in zip(result.measurements, truths, strict=True):
-        assert abs(measurement.pallet_in_fork.euler[1] - truth.euler[1]) <= math.radians(0.1)
+    inserted_after_shorter_exposures(42, 1, "with the points beside light clipped in every channel")
 
 
 def test_regression_a_deck_clipped_with_the_floor_behind_it_asks_for_a_shorter_exposure_though_no_edge_shows():
@@ -267,14 +257,19 @@ def test_regression_a_deck_clipped_with_the_floor_behind_it_asks_for_a_shorter_e
     the load edges were found"). 72 % of the deck's top is clipped (PitchConfig.max_deck_top_clipped) and no load's
     edges were found either: the frame is refused as overexposed, at 0.6 of the exposure again (the deck's edges now
     beside clipped light), and measured within the bounds at 0.36; the pick inserts."""
-    scene = campaign_scene_of(7, 214)
-    with SimulatedWorld(CONFIG, scene) as world:
+    inserted_after_shorter_exposures(214, 2, "of it clipped in every channel")
+
+
+def inserted_after_shorter_exposures(index: int, exposures: int, reason: str) -> None:
+    """Campaign pick ``index`` of seed 7 inserts, with no collision, after ``exposures`` shorter exposures, the first
+    asked for by a refusal that says ``reason``; every measurement within 0.1 deg of the truth in pitch."""
+    with SimulatedWorld(CONFIG, campaign_scene_of(7, index)) as world:
         result = world.controller().run()
         summary = pick_summary(result, world)
         truths = world.measured_truths[: len(result.measurements)]
     assert result.ok, result.reason
-    assert len(result.exposures) == 2 and "of it clipped in every channel" in result.exposures[0], result.exposures
-    assert summary["exposure_changes"] == 2 and not summary["collision"]
+    assert len(result.exposures) == exposures and reason in result.exposures[0], result.exposures
+    assert summary["exposure_changes"] == exposures and not summary["collision"]
     for measurement, truth in zip(result.measurements, truths, strict=True):
         assert abs(measurement.pallet_in_fork.euler[1] - truth.euler[1]) <= math.radians(0.1)
 
