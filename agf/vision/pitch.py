@@ -183,7 +183,8 @@ class PitchEvidence:
         Each edge's share of points whose highlight is clipped (:data:`CLIPPED` or more; NaN for an edge not found).
     shown : float
         ``ratio`` counting the edge points beside light clipped in every channel, which no channel places: what
-        the edges would show with a shorter exposure (0 where no point was clipped so).
+        the edges would show with a shorter exposure (each edge counted so only where it is short of the configured
+        ``min_ratio``; 0 for an edge not found with no point clipped so).
     top_clipped : float
         Unloaded, its edges found over less than the configured ``min_ratio``: the share of the top deck clipped in
         every channel (:func:`deck_top_clipped`; 0 otherwise).
@@ -872,7 +873,8 @@ class _Edge(NamedTuple):
     ratio: float
     highlight: float
     clipped: float
-    shown: float  # the ratio with the points blinded by clipped light (_shown_with_clipped), at least ``ratio``
+    shown: float  # the ratio with the points blinded by clipped light (_shown_with_clipped) where ``ratio`` is short
+    # of min_ratio, else ``ratio``
     pinned: bool = False
 
 
@@ -893,9 +895,9 @@ def _edge(search: _Search, segment: Array, far: Array, region: Array, reach_regi
     ones = np.ones(len(fitted))
     line = _line(panorama, fitted, ones, lon, config)
     length = max(region[3] - region[2], 1.0)  # panorama rows
-    shown = _shown_with_clipped(search, segment, corrected, rows[inside], blind, lon, length)
     if line is None:
-        return _Edge(None, None, None, 0.0, math.nan, math.nan, shown)
+        return _Edge(None, None, None, 0.0, math.nan, math.nan,
+                     _shown_with_clipped(search, segment, corrected, rows[inside], blind, lon, length))
     rival = _rival_nearby(panorama, fitted, ones, line, lon, config)
     anchor = _unit(segment[:1])[0] if search.anchored else None
     pinned = False
@@ -913,9 +915,13 @@ def _edge(search: _Search, segment: Array, far: Array, region: Array, reach_regi
     tilt = tilt_sigma(grown[fit.inliers] if fit is not None else fitted[line.inliers],
                       fit.normal if fit is not None else line.normal)
     ratio = min(_support(line, corrected, rows[inside], panorama, config) / length, 1.0)
+    # Only an edge short of min_ratio is counted again with its blinded points: one that reaches it cannot be why
+    # its pair falls short, and the count costs a Hough line over the points
+    shown = ratio if ratio >= config.min_ratio else max(
+        _shown_with_clipped(search, segment, corrected, rows[inside], blind, lon, length), ratio)
     beside = highlights[inside][strong[inside]][line.inliers]
     return _Edge(fit if fit is not None else line, rival, tilt, ratio, float(np.median(beside)),
-                 float(np.mean(beside >= CLIPPED)), max(shown, ratio), pinned)
+                 float(np.mean(beside >= CLIPPED)), shown, pinned)
 
 
 def _shown_with_clipped(

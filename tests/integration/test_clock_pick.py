@@ -225,21 +225,7 @@ def test_a_deck_clipped_beside_its_edges_is_measured_again_with_a_shorter_exposu
     exposure, whose frame is rendered with the scene's light scaled, measures within the bounds and inserts; the
     camera's exposure is set back when the pick ends. (Should the vision one day measure the clipped frame, this
     test needs another such pick: it tests the exposure step, not that refusal.)"""
-    from drivers.sim.world import campaign_scene
-
-    scene = campaign_scene(load_scene(repo_path("configs/scenes/pick.yaml")), 7, 115)
-    with SimulatedWorld(CONFIG, scene) as world:
-        controller = world.controller()
-        result = controller.run()
-        summary = pick_summary(result, world)
-        truths = world.measured_truths[: len(result.measurements)]
-    assert result.ok, result.reason
-    assert len(result.exposures) == 1 and "the top deck is overexposed" in result.exposures[0], result.exposures
-    assert summary["exposure_changes"] == 1 and not summary["collision"]
-    assert controller.frames.exposure == 1.0
-    for measurement, truth in zip(result.measurements, truths, strict=True):
-        est, gt = measurement.pallet_in_fork.to_dict(), truth.to_dict()
-        assert abs(est["pitch_deg"] - gt["pitch_deg"]) <= 0.1, (est, gt)
+    inserted_after_shorter_exposures(115, 1, "the top deck is overexposed")
 
 
 def test_regression_a_deck_edge_blinded_by_light_clipped_in_every_channel_asks_for_a_shorter_exposure():
@@ -262,14 +248,17 @@ def test_regression_a_deck_clipped_with_the_floor_behind_it_asks_for_a_shorter_e
 
 def inserted_after_shorter_exposures(index: int, exposures: int, reason: str) -> None:
     """Campaign pick ``index`` of seed 7 inserts, with no collision, after ``exposures`` shorter exposures, the first
-    asked for by a refusal that says ``reason``; every measurement within 0.1 deg of the truth in pitch."""
+    asked for by a refusal that says ``reason``; every measurement within 0.1 deg of the truth in pitch, and the
+    camera's exposure set back when the pick ends."""
     with SimulatedWorld(CONFIG, campaign_scene_of(7, index)) as world:
-        result = world.controller().run()
+        controller = world.controller()
+        result = controller.run()
         summary = pick_summary(result, world)
         truths = world.measured_truths[: len(result.measurements)]
     assert result.ok, result.reason
     assert len(result.exposures) == exposures and reason in result.exposures[0], result.exposures
     assert summary["exposure_changes"] == exposures and not summary["collision"]
+    assert controller.frames.exposure == 1.0
     for measurement, truth in zip(result.measurements, truths, strict=True):
         assert abs(measurement.pallet_in_fork.euler[1] - truth.euler[1]) <= math.radians(0.1)
 
