@@ -1,6 +1,6 @@
 """A refused first measurement with no view level with the pallet to move to: the controller raises the forks by the
-planner's look-again move and measures once more (``ControllerConfig.views``, one by default); where the planner has
-no such move, the vision's refusal ends the pick, refused, with no motion.
+planner's look-again move and measures once more (``ControllerConfig.views`` times, two by default); where the planner
+has no such move, the vision's refusal ends the pick, refused, with no motion.
 
 The controller's logic is the unit here: its axes follow their setpoints at once (test_fleet_pause's); the planner's
 own look-again move is tested in test_viewing_pose."""
@@ -56,11 +56,20 @@ def test_a_refused_first_measurement_is_taken_again_after_the_look_again_move_an
     assert axis.position == 0.05 + 0.1 + 0.1  # looked again from 0.05 higher, then aligned and inserted
 
 
-def test_the_refusal_after_the_look_again_ends_the_pick_refused_where_the_move_left_the_forks():
-    result, axis, _ = pick_refused_first(2, LookingAgain())
-    assert not result.ok and result.refused and result.state == "fault"
-    assert result.reason == "measuring: refusal 2: a second line runs beside the unloaded edges"
-    assert len(result.views) == 1 and axis.position == 0.05
+def test_a_pick_refused_after_its_first_look_again_looks_once_more_from_higher_and_goes_on():
+    planner = LookingAgain()
+    result, axis, calls = pick_refused_first(2, planner)
+    assert result.ok, result.reason
+    assert [v.split(":")[0] for v in result.views] == ["refusal 1", "refusal 2"] and planner.asked == [None, None]
+    assert len(calls) == 4 and axis.position == 0.05 + 0.05 + 0.1 + 0.1
+
+
+def test_the_refusal_after_the_last_look_again_ends_the_pick_refused_where_the_moves_left_the_forks():
+    for views in (1, 2):
+        result, axis, _ = pick_refused_first(views + 1, LookingAgain(), ControllerConfig(views=views))
+        assert not result.ok and result.refused and result.state == "fault"
+        assert result.reason == f"measuring: refusal {views + 1}: a second line runs beside the unloaded edges"
+        assert len(result.views) == views and axis.position == 0.05 * views
 
 
 def test_without_room_to_look_again_the_vision_refusal_ends_the_pick_with_no_motion():
@@ -76,3 +85,28 @@ def test_with_no_viewing_move_configured_the_first_refusal_ends_the_pick_without
     result, axis, _ = pick_refused_first(1, planner, ControllerConfig(views=0))
     assert result.reason == "measuring: refusal 1: a second line runs beside the unloaded edges"
     assert result.views == [] and planner.asked == [] and axis.position == 0.0
+
+
+def test_regression_a_hidden_pallet_with_no_room_for_the_viewing_move_ends_the_pick_refused_not_faulted():
+    """Seed 7 campaign pick 763 with two views: after the look from higher the forks hid the pallet with their tips
+    12 mm from its face; the viewing move's own error (no room to move them out of the view) ended the pick as
+    faulted. The vision's refusal is what ends it, with no motion after it."""
+    from agf.errors import PalletHiddenError
+    from agf.geometry import Transform
+
+    class Cornered(LookingAgain):
+        def view_motion(self, axes_now, pallet_in_fork):
+            self.asked.append(pallet_in_fork)
+            raise AgfError("the forks hide the pallet, and their tips are 12 mm from its front face: no room to move "
+                           "them out of the camera's view")
+
+    rough = Transform.from_euler(0.3, 0.0, -0.2, 0.0, 0.0, 0.0)
+
+    def measure(frame, prior):
+        raise PalletHiddenError("the forks hide 37% of the pallet's pocket edges from the camera", rough)
+
+    planner, axis = Cornered(), IdealAxis()
+    result = PickController({"lift": axis}, BlankCamera(4, 4), measure, planner, ControllerConfig()).run()
+    assert not result.ok and result.refused
+    assert result.reason == "measuring: the forks hide 37% of the pallet's pocket edges from the camera"
+    assert result.views == [] and planner.asked == [rough] and axis.position == 0.0
