@@ -396,10 +396,11 @@ def test_regression_campaign_picks_of_seed_7_a_rival_pairing_within_0_05_deg_kee
 def test_open_wrong_accept_campaign_pick_107_of_seed_7_verified_outside_the_bounds_after_two_viewing_moves():
     """Seed 7 pick 107 with two viewing moves (session 42): refused from the start and after its first move, measured
     after the second (the forks 486 mm above the start, level with the pallet) within the bounds (pitch 0.004 deg
-    off) and inserted with 23.7 mm clearance; but its verifying
-    frame, from the aligned forks, was accepted 0.121 deg off in pitch (the plan is not made again from a verifying
-    measurement that agrees with it). Open: the verifying frame's pitch must be refused or within the bounds."""
+    off) and inserted with 23.7 mm clearance; but its verifying frame, from the aligned forks, was accepted 0.121 deg
+    off in pitch (the plan is not made again from a verifying measurement that agrees with it). Open: the verifying
+    frame's pitch must be refused or within the bounds."""
     assert_no_measurement_outside_bounds(7, 107)
+
 
 def test_regression_campaign_pick_386_of_seed_7_ends_refused_not_in_the_pallet():
     """An unloaded pallet pitched 2.28 deg on a truck bed, a shadow's edge beside a deck edge: its first frame was
