@@ -2,9 +2,9 @@
 
 The data flow of paper section III: pose at an assumed pitch -> the loaded and unloaded line
 hypotheses -> choose (both valid: unloaded, the paper's rule against background verticals) ->
-the pose refined at the measured pitch (searched again nearby when the first search was ambiguous; at the
-edges' own pitch when a rival line beside them was), until pose and pitch agree -> for an unloaded pallet,
-y, z, yaw and pitch from the planes of its two deck edges, x from the face -> every edge of the face, its outline
+the pose refined at the measured pitch (searched again nearby when the first search was ambiguous),
+until pose and pitch agree -> for an unloaded pallet, y, z, yaw and
+pitch from the planes of its two deck edges, x from the face -> every edge of the face, its outline
 included, where the pose puts it, and no nearby pose in the face's plane explaining them better
 (:mod:`agf.vision.edge_agreement`). ``agf measure`` (:mod:`agf.commands.measure`) calls
 :func:`measure_pallet` and draws what it returns.
