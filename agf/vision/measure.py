@@ -112,13 +112,6 @@ class MeasureConfig:
     # deck's: campaign seed 7, pick 386 (a shadow's edges beside an unloaded deck on a truck bed) kept a pitch
     # 1.9 deg off, its face 34 mm low, from edges 1.2 deg off the face's yaw.
     face_fallback_yaw: float = math.radians(0.5)
-    # Where neither hypothesis is valid and one is ambiguous (a rival line beside an edge), the pose is searched once
-    # more at the pitch of its edges without the rival, before refusing: searched around an assumed pitch 2-4 deg
-    # from the pallet's, the panorama leans with it, and an upright or a texture line beside a load edge pairs with
-    # it; at the edges' own pitch they often settle alone. On the first frames of `agf simulate --random 200
-    # --seed 7` (session 43): 78 within the bounds instead of 72 (5 loaded, 1 unloaded), none lost, the two
-    # outside the bounds the same two.
-    ambiguity_research: bool = True
     # At a new pitch the pose is refined from the last one when the wide search was unambiguous (its
     # margin at least the pose search's minimum); a refinement moving it further than this is replaced
     # by a search nearby.
@@ -319,7 +312,7 @@ def measure_pallet(
         seen.setdefault("pose", first)
         step = swing = 0.0
         evidence = None
-        led = tried = False
+        led = False
         searched: list[tuple[float, dict[str, PitchEvidence]]] = []  # each search pitch, the hypotheses found there
         for _ in range(config.iterations):
             before, evidence = evidence, pitch_at(pose, evidence)
@@ -329,12 +322,6 @@ def measure_pallet(
                 # The load's edges, searched around the wrong pitch, disagree with its face's lines: search
                 # the pose and the edges again at the face's pitch; the edges must then agree by themselves.
                 pitch, led, step = lead, True, 0.0
-                pose = pose_again(pose, pitch, first)
-                continue
-            offered = _ambiguous_pitch(evidence, volume) if config.ambiguity_research else None
-            if not tried and offered is not None and abs(offered - pitch) >= config.pitch_tolerance:
-                # There the edges must settle by themselves, the rival's pitch included (check_pitch_stable).
-                pitch, tried, step = offered, True, 0.0
                 pose = pose_again(pose, pitch, first)
                 continue
             chosen = _choose(evidence, config.pitch)
@@ -683,19 +670,6 @@ def next_pitch(searched: float, measured: float, last_change: float) -> tuple[fl
 
 def _distance(a: Transform, b: Transform) -> float:
     return float(math.dist(a.translation, b.translation))
-
-
-def _ambiguous_pitch(evidence: dict[str, PitchEvidence], volume: SearchVolume) -> float | None:
-    """Where neither hypothesis is valid and one is ambiguous (a rival line beside an edge), the pitch (rad) of its
-    edges without the rivals, the unloaded one's first as :func:`_choose` prefers it, when it lies in the search
-    ``volume``; else None."""
-    if any(e.valid for e in evidence.values()):
-        return None
-    for name in ("unloaded", "loaded"):
-        e = evidence[name]
-        if e.ambiguous and e.candidates and abs(e.candidates[0]) <= volume.pitch_max:
-            return e.candidates[0]
-    return None
 
 
 def _choose(evidence: dict[str, PitchEvidence], config: PitchConfig) -> PitchEvidence:

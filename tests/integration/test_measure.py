@@ -278,9 +278,7 @@ def test_regression_a_face_matched_with_a_deck_board_nearer_along_the_line_of_si
 def test_regression_a_load_face_whose_lines_fix_the_pitch_to_0_02_deg_gives_it_despite_a_second_load_edge():
     """Campaign seed 7, pick 173 (loaded, pitch -1.84 deg): a second line beside a load edge made the edges give two
     pitches, and 12 lines on the load's face, fewer than the 15 that counted alone, gave it to +-0.02 deg: refused.
-    Lines that fix the pitch to PitchConfig.face_alone_tight now count alone, however many. (Since session 43 the
-    pose is also searched again at the edges' own pitch when they are ambiguous, which measures this frame too; the
-    refusal is shown without both.)"""
+    Lines that fix the pitch to PitchConfig.face_alone_tight now count alone, however many."""
     from agf.vision.measure import MeasureConfig
     from agf.vision.pitch import PitchConfig
 
@@ -289,30 +287,9 @@ def test_regression_a_load_face_whose_lines_fix_the_pitch_to_0_02_deg_gives_it_d
     detail = measure_pallet(image, camera, scene.camera_in_fork, pallet, CONFIG.vision.search, forks=CONFIG.forks)
     assert detail.measurement.loaded
     assert within_bounds(errors(scene, detail.measurement)), errors(scene, detail.measurement)
-    alone = measure_pallet(image, camera, scene.camera_in_fork, pallet, CONFIG.vision.search, forks=CONFIG.forks,
-                           config=MeasureConfig(ambiguity_research=False))
-    assert within_bounds(errors(scene, alone.measurement)), errors(scene, alone.measurement)
     with pytest.raises(MeasurementError, match="second line runs beside the loaded edges"):
         measure_pallet(image, camera, scene.camera_in_fork, pallet, CONFIG.vision.search, forks=CONFIG.forks,
-                       config=MeasureConfig(pitch=PitchConfig(face_alone_tight=0.0), ambiguity_research=False))
-
-
-@pytest.mark.parametrize(("pick", "edges"), [(5, "unloaded"), (93, "loaded")])
-def test_regression_edges_ambiguous_at_the_assumed_pitch_are_searched_again_at_their_own(pick, edges):
-    """Campaign seed 7, first frames of picks 5 (unloaded, pitch -0.40 deg) and 93 (loaded, 3.43 deg): every search
-    found the face within 2 mm, and the edges, searched around the assumed pitch (0 or +-3 deg), had a rival line
-    beside them: refused as "a second line". At the true pose neither is ambiguous. The pose is now searched once
-    more at the edges' own pitch (MeasureConfig.ambiguity_research), where they settle within the bounds."""
-    from agf.vision.measure import MeasureConfig
-
-    scene, image = campaign_first_frame(7, pick)
-    pallet, camera = CATALOGUE[scene.pallet.type], load_camera(scene.camera)
-    detail = measure_pallet(image, camera, scene.camera_in_fork, pallet, CONFIG.vision.search, forks=CONFIG.forks)
-    assert detail.measurement.loaded == scene.loaded
-    assert within_bounds(errors(scene, detail.measurement)), errors(scene, detail.measurement)
-    with pytest.raises(MeasurementError, match=f"second line runs beside the {edges} edges"):
-        measure_pallet(image, camera, scene.camera_in_fork, pallet, CONFIG.vision.search, forks=CONFIG.forks,
-                       config=MeasureConfig(ambiguity_research=False))
+                       config=MeasureConfig(pitch=PitchConfig(face_alone_tight=0.0)))
 
 
 def test_regression_deck_edges_found_from_one_side_only_settle_on_their_pitch():
