@@ -551,6 +551,17 @@ def test_regression_campaign_picks_of_seed_7_with_a_loose_pitch_accept_no_measur
     assert_no_measurement_outside_bounds(7, index)
 
 
+@pytest.mark.parametrize("index", (384, 390, 655, 936, 964))
+def test_regression_campaign_picks_of_seed_7_edges_searched_again_at_their_own_pitch_accept_nothing_outside(index):
+    """Session 43 tried searching the pose once more at the edges' own pitch where a rival line beside them had made
+    them ambiguous at the assumed pitch: on the first frames of picks 0-199 it measured 6 more within the bounds and
+    none outside, but in `agf simulate --random 1000 --seed 7` it accepted these picks' frames 0.10-0.18 deg off in
+    pitch (384, 655 and 964 their verifying frames, which a rival a few pixels beside a deck or load edge had
+    refused; 390 and 936 after viewing moves), where without it they were refused or measured within the bounds.
+    Not kept; a rival found near the pallet's own pitch must keep refusing."""
+    assert_no_measurement_outside_bounds(7, index)
+
+
 @pytest.mark.parametrize("index", (42, 120))
 def test_regression_campaign_picks_of_seed_7_beside_clipped_light_accept_no_measurement_outside_bounds(index):
     """Picks 42 and 120 accepted pitches 0.1-0.2 deg off (2026-11-25): pick 42's deck, lit past the sensor's range
