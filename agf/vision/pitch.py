@@ -115,6 +115,11 @@ class PitchConfig:
     # load's edges gave a pitch 0.185 deg off and were accepted (pick 205); of the other 21 loaded picks whose
     # exposures it changed, one more inserted (922, no load's edges found: kept) and one fewer (875).
     max_deck_top_clipped: float = 0.5
+    # Edges found in the colour frame's gradient (the channels' gradients' root sum of squares) instead of the grey's,
+    # where the colour frame is given: a terracotta deck on a grey bed differs in hue, and by a few grey levels only.
+    # Off by default (the vision's thresholds were set on the grey); measure_pallet searches so where the grey
+    # found no edges at all (:class:`EdgesNotFoundError`).
+    colour_edges: bool = False
     # A load hides the top deck's side edges: where the loaded hypothesis is taken, the unloaded one found them over
     # at most 26 % of their length on 62 right loaded measurements (random looks, campaign first frames). Rack
     # uprights behind an unloaded pallet, taken for a load's edges with the deck's edges found over 42 %, gave the
@@ -823,12 +828,13 @@ def _evidences(
     panorama = _panorama_over(predicted, [s for pair in pairs + reaches for s in pair], config)
     image, valid = render_panorama(gray, camera, panorama)
     colour_panorama = render_panorama(colour, camera, panorama)[0] if colour is not None else None
+    edged = colour_panorama if config.colour_edges and colour_panorama is not None else image
     regions = [[_region(panorama, segment, config) for segment in pair] for pair in pairs]
     reach_regions = [[_region(panorama, far, config) for far in pair] for pair in reaches]
     spanned = np.array([r for pair in regions + reach_regions for r in pair])
     area = np.array([spanned[:, 0].min(), spanned[:, 1].max(), spanned[:, 2].min(), spanned[:, 3].max()])
     areas = list(spanned) + ([area] if face else [])
-    points = _EdgePoints(*_edge_points(image.astype(np.float32), valid, panorama, areas, colour_panorama))
+    points = _EdgePoints(*_edge_points(edged.astype(np.float32), valid, panorama, areas, colour_panorama))
     face_points = points.directions[_inside(area, points.columns, points.rows) & points.strong] if face else None
     search = _Search(hypothesis, camera, camera_in_fork, pallet_in_fork, pallet_in_camera, axis_index, config,
                      panorama, points, anchored, face_points)
@@ -1185,7 +1191,8 @@ def _edge_points(
     colour: NDArray[np.uint8] | None = None,
 ):
     """Sub-pixel maxima of the horizontal gradient along each row above half an adaptive threshold, and
-    which of them reach the threshold itself (the strong ones that lines are fitted to).
+    which of them reach the threshold itself (the strong ones that lines are fitted to). The gradient of a colour
+    ``image`` (H, W, 3) is its channels' root sum of squares over the square root of 3 (a grey edge's own).
 
     Directions (camera frame) are computed only for maxima in one of the ``areas`` (regions as
     :func:`_region` gives them), NaN elsewhere: the rest of the panorama only sets the threshold. With the
@@ -1193,6 +1200,8 @@ def _edge_points(
     those no channel finds are returned ``blinded``, never strong.
     """
     gx = _row_gradient(image)
+    if gx.ndim == 3:
+        gx = np.sqrt(np.einsum("ijk,ijk->ij", gx, gx) / 3.0)
     gx[~cv2.erode(valid.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)] = 0.0
     # The statistics of the gradient, from every 4th row and column: the full sort cost 15 ms a panorama.
     sample, sampled_valid = gx[::4, ::4], valid[::4, ::4]
