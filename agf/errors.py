@@ -64,13 +64,6 @@ class OverexposedError(MeasurementError):
     """
 
 
-class EdgesNotFoundError(MeasurementError):
-    """Neither the top deck's edges nor a load's were found where a pose put them: the grey image may show no edge
-    where the colour frame does (a deck and a floor of one brightness and two hues), so the vision may search the
-    colour gradient before it refuses.
-    """
-
-
 class NotAvailableError(AgfError):
     """A capability that has not been built yet, or hardware that is not present."""
 

@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 
 from agf.camera import CameraModel
 from agf.config import ForkGeometry, SearchVolume
-from agf.errors import OTHER_SEARCHES, EdgesNotFoundError, MeasurementError, OverexposedError, PalletHiddenError
+from agf.errors import OTHER_SEARCHES, MeasurementError, OverexposedError, PalletHiddenError
 from agf.geometry import Transform
 from agf.measurement import PalletMeasurement
 from agf.pallets import PalletType
@@ -180,7 +180,6 @@ def measure_pallet(
     gray_f = gray.astype(np.float32)  # the pose search's working copy, made once for all its calls
     face = face_model_from_pallet(pallet)
     search = narrow = config.pose  # the pose search of the current attempt; set for each similarity below
-    edges_config = config.pitch  # the pitch's: with colour_edges for the searches again in colour (below)
     seen: dict[str, Any] = {}  # the first pose and evidence, for a refusal's Findings
 
     def pose_at(near: Transform | None, pitch: float, search: PoseSearchConfig) -> PoseEstimate:
@@ -257,10 +256,10 @@ def measure_pallet(
         """Both hypotheses at the first pose; after that the loaded one only when the unloaded one fails,
         as a valid unloaded hypothesis wins anyway (its loaded score is then that of the pose before)."""
         t = time.perf_counter()
-        unloaded = unloaded_evidence(gray, camera, camera_in_fork, pallet, pose.pallet_in_fork, edges_config,
+        unloaded = unloaded_evidence(gray, camera, camera_in_fork, pallet, pose.pallet_in_fork, config.pitch,
                                      colour=colour)
         if before is None or not unloaded.valid:
-            loaded = loaded_evidence(gray, camera, camera_in_fork, pallet, pose.pallet_in_fork, edges_config,
+            loaded = loaded_evidence(gray, camera, camera_in_fork, pallet, pose.pallet_in_fork, config.pitch,
                                      colour=colour)
         else:
             loaded = before["loaded"]
@@ -288,7 +287,7 @@ def measure_pallet(
         settled = False
         for offset in (-config.pitch_probe, config.pitch_probe):
             probe = Transform.from_euler(*pose.pallet_in_fork.translation, roll, chosen.pitch + offset, yaw)
-            again = edges_of(gray, camera, camera_in_fork, pallet, probe, edges_config, colour=colour)
+            again = edges_of(gray, camera, camera_in_fork, pallet, probe, config.pitch, colour=colour)
             check_same_pitch(chosen, again, f"from {math.degrees(offset):+.1f} deg beside it")
             settled = settled or again.valid
         if not settled:
@@ -325,7 +324,7 @@ def measure_pallet(
                 pitch, led, step = lead, True, 0.0
                 pose = pose_again(pose, pitch, first)
                 continue
-            chosen = _choose(evidence, edges_config)
+            chosen = _choose(evidence, config.pitch)
             change = chosen.pitch - pitch
             pitch, swung = next_pitch(pitch, chosen.pitch, step)
             swing = max(swing, swung)
@@ -346,9 +345,9 @@ def measure_pallet(
         gave the world's vertical 2.4 deg off (campaign seed 7, pick 35, the forks 200 mm further back)."""
         t = time.perf_counter()
         deck = unloaded_evidence(gray, camera, camera_in_fork, pallet, pose.pallet_in_fork,
-                                 dataclasses.replace(edges_config, colour_edges=True), colour=colour)
+                                 dataclasses.replace(config.pitch, colour_edges=True), colour=colour)
         timing["pitch"] = timing.get("pitch", 0.0) + (time.perf_counter() - t) * 1e3
-        check_deck_under_load(deck.ratio, edges_config, " in the colour frame's gradient")
+        check_deck_under_load(deck.ratio, config.pitch, " in the colour frame's gradient")
 
     def onto_deck_edges(pose: PoseEstimate, edges: PitchEvidence) -> PoseEstimate:
         moved = pose_from_deck_edges(edges, pallet, camera_in_fork, pose.pallet_in_fork)
@@ -430,44 +429,27 @@ def measure_pallet(
     if config.steep_similarity is not None:
         attempts.append((config.steep_similarity, starts[0], True))
         searches.append(f"{config.steep_similarity} a level finer where the face is thin")
-    def attempt(similarity: str, assumed: float, steep: bool) -> tuple[PoseEstimate, PitchEvidence,
-                                                                      dict[str, PitchEvidence], EdgeAgreement]:
-        nonlocal search, narrow
+    failures: list[MeasurementError] = []
+    for similarity, assumed, steep in attempts:
         search = dataclasses.replace(config.pose, similarity=similarity, finer_where_thin=steep)
         # Searched again near a pose of this frame: its rivals and other depths were judged in the wide search.
         narrow = near_prior(search, 0.04)
-        pose, chosen, evidence = converged(assumed)
-        # before the face-edge check, which costs 50 ms and cannot change the pitch's sigma
-        check_pitch_sigma(chosen.hypothesis, chosen.sigma, config.max_sigma_pitch)
-        if chosen.hypothesis == "loaded" and colour is not None and not edges_config.colour_edges:
-            check_deck_in_colour(pose)
-        placed = [onto_deck_edges(pose, chosen)] if chosen.hypothesis == "unloaded" and chosen.placed else []
-        pose, agreement = confirmed(placed + [pose], chosen)
-        if prior is None:
-            check_in_volume(pose.pallet_in_fork, volume)
-        return pose, chosen, evidence, agreement
-
-    failures: list[MeasurementError] = []
-    for similarity, assumed, steep in attempts:
         try:
-            pose, chosen, evidence, agreement = attempt(similarity, assumed, steep)
+            pose, chosen, evidence = converged(assumed)
+            # before the face-edge check, which costs 50 ms and cannot change the pitch's sigma
+            check_pitch_sigma(chosen.hypothesis, chosen.sigma, config.max_sigma_pitch)
+            if chosen.hypothesis == "loaded" and colour is not None:
+                check_deck_in_colour(pose)
+            placed = [onto_deck_edges(pose, chosen)] if chosen.hypothesis == "unloaded" and chosen.placed else []
+            pose, agreement = confirmed(placed + [pose], chosen)
+            if prior is None:
+                check_in_volume(pose.pallet_in_fork, volume)
             break
         except MeasurementError as exc:
             failures.append(exc)
     else:
-        # The searches whose poses showed no edges at all in grey, once more in the colour gradient (see
-        # PitchConfig.colour_edges), where the frame has colour; every check holds as in grey.
-        unseen = [a for a, f in zip(attempts, failures, strict=True) if isinstance(f, EdgesNotFoundError)]
-        edges_config = dataclasses.replace(config.pitch, colour_edges=True)
-        for similarity, assumed, steep in unseen if colour is not None else []:
-            try:
-                pose, chosen, evidence, agreement = attempt(similarity, assumed, steep)
-                break
-            except MeasurementError as exc:
-                failures.append(exc)
-        else:
-            found = Findings(seen.get("pose"), seen.get("evidence"))
-            raise _refusal(failures, volume, searches, found, rough(found.pose))
+        found = Findings(seen.get("pose"), seen.get("evidence"))
+        raise _refusal(failures, volume, searches, found, rough(found.pose))
     timing["total"] = (time.perf_counter() - start) * 1e3
     measurement = PalletMeasurement(
         pallet_in_camera=pose.pallet_in_camera,
@@ -739,7 +721,7 @@ def _choose(evidence: dict[str, PitchEvidence], config: PitchConfig) -> PitchEvi
             f"no trustworthy pitch: a second line runs beside the {' and '.join(ambiguous)} edges "
             "(a rack upright or a shadow next to the edge); refusing rather than guessing"
         )
-    raise EdgesNotFoundError(
+    raise MeasurementError(
         "no pitch: neither the deck edges (unloaded, ratio "
         f"{evidence['unloaded'].ratio:.2f}) nor the load edges (loaded, ratio {evidence['loaded'].ratio:.2f}) "
         "were found along their predicted length"

@@ -116,9 +116,10 @@ class PitchConfig:
     # exposures it changed, one more inserted (922, no load's edges found: kept) and one fewer (875).
     max_deck_top_clipped: float = 0.5
     # Edges found in the colour frame's gradient (the channels' gradients' root sum of squares) instead of the grey's,
-    # where the colour frame is given: a terracotta deck on a grey bed differs in hue, and by a few grey levels only.
-    # Off by default (the vision's thresholds were set on the grey); measure_pallet searches so where the grey
-    # found no edges at all (:class:`EdgesNotFoundError`).
+    # where the colour frame is given: a terracotta deck on a grey bed differs from it by a few grey levels. Only to
+    # look for the deck's edges past a load (measure_pallet check_deck_in_colour), never to measure: searched so
+    # where the grey found no edges (session 44), they measured the first frames of campaign seed 7's picks 75 and
+    # 108 -0.114 and -0.107 deg off in pitch, as a JPEG keeps hue at half the resolution of brightness.
     colour_edges: bool = False
     # A load hides the top deck's side edges: where the loaded hypothesis is taken, the unloaded one found them over
     # at most 26 % of their length on 62 right loaded measurements (random looks, campaign first frames). Rack

@@ -250,6 +250,31 @@ def test_edge_points_beside_light_clipped_in_every_channel_are_blinded_not_dropp
         assert np.all(np.isfinite(directions[at_edge]))  # placed where the grey shows them, for the count
 
 
+def test_an_edge_of_two_hues_and_one_grey_is_found_in_the_colour_gradient_only():
+    """PitchConfig.colour_edges (campaign seed 7, pick 35: a terracotta deck on a grey bed, 3 grey levels apart): an
+    edge between two colours of one grey is no edge point in grey and a strong one in the colour gradient, at its
+    column; a grey edge elsewhere sets the threshold in both."""
+    from agf.vision.grey import grey_from_bgr
+    from agf.vision.panorama import Panorama
+
+    rng = np.random.default_rng(3)
+    cols = np.arange(64, dtype=float)
+    hue = 0.5 * (1.0 + np.tanh((cols - 20.3) / 1.2))  # terracotta (B, G, R) to grey left of a dark stripe
+    row = (1 - hue)[:, None] * np.array([60.0, 92.0, 172.0]) + hue[:, None] * np.array([112.0, 112.0, 112.0])
+    row[44:] *= 0.3
+    colour = np.clip(np.repeat(row[None], 8, axis=0) + rng.normal(0, 1.0, (8, 64, 3)), 0, 255).astype(np.uint8)
+    grey = grey_from_bgr(colour).astype(np.float32)
+    assert abs(float(grey[:, :16].mean() - grey[:, 24:40].mean())) < 3.0  # one grey either side of the hue edge
+    panorama = Panorama.around(np.array([0.0, 0.0, 1.0]), 64, 8)
+    valid, area = np.ones((8, 64), bool), [np.array([2.0, 61.0, 0.0, 7.0])]
+    for image, found in ((grey, False), (colour.astype(np.float32), True)):
+        _, strong, columns, _, _, _ = _edge_points(image, valid, panorama, area, colour)
+        at_edge = strong & (np.abs(columns - 20.3) < 1.0)
+        assert at_edge.sum() == (8 if found else 0), (image.ndim, columns[strong])
+        assert strong[np.abs(columns - 43.5) < 1.5].sum() >= 6  # the grey edge, in both
+    assert np.abs(columns[at_edge] - 20.3).max() < 0.3
+
+
 def test_the_top_deck_clipped_in_every_channel_is_counted_only_where_the_camera_looks_down_on_it():
     """PitchConfig.max_deck_top_clipped (campaign seed 7, pick 214): a deck and a floor both clipped show no edge."""
     from agf.camera import load_camera
