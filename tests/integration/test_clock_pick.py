@@ -234,6 +234,21 @@ def test_a_pick_refused_from_higher_too_looks_once_more_from_higher_still_and_in
     assert all(abs(row["actual"]["reach"] - start["reach"]) < 1e-4 for row in viewing)
 
 
+def test_a_pick_refused_after_two_viewing_moves_makes_a_third_and_inserts():
+    """Campaign pick 57 of seed 7: a loaded pallet 49 mm below the forks, pitched 1.9 deg, refused at the start ("the
+    loaded edges do not settle on one pitch"), from 100 mm higher (the same) and from 200 mm higher ("the 4 lines on
+    the load's face give its pitch only to ..."; session 44: the pick ended refused there), is measured from 300 mm
+    higher (``ControllerConfig.views`` 3 since session 45) and picked. (Should the vision one day measure one of the
+    earlier frames, this test needs another such pick: it tests the third move, not those refusals.)"""
+    scene = campaign_scene_of(7, 57)
+    start, result, summary, viewing = viewed_pick(scene)
+    assert result.ok, result.reason
+    assert len(result.views) == 3 and summary["viewing_moves"] == 3 and not summary["collision"]
+    assert viewing[-1]["actual"]["lift"] - start["lift"] == pytest.approx(0.3, abs=0.002)
+    assert all(row["actual"]["lift"] >= start["lift"] - 0.002 for row in viewing)  # never down
+    assert all(abs(row["actual"]["reach"] - start["reach"]) < 1e-4 for row in viewing)
+
+
 def test_regression_campaign_pick_763_of_seed_7_hidden_after_looking_again_ends_refused_not_faulted():
     """Seed 7 pick 763 (loaded, 247 mm below the forks): refused at the start, and from 100 mm higher the forks hide
     its pockets with their tips 12 mm from its face, too close for the viewing move. With a second view allowed the

@@ -1,5 +1,5 @@
 """A refused first measurement with no view level with the pallet to move to: the controller raises the forks by the
-planner's look-again move and measures once more (``ControllerConfig.views`` times, two by default); where the planner
+planner's look-again move and measures once more (``ControllerConfig.views`` times, three by default); where the planner
 has no such move, the vision's refusal ends the pick, refused, with no motion.
 
 The controller's logic is the unit here: its axes follow their setpoints at once (test_fleet_pause's); the planner's
@@ -64,8 +64,16 @@ def test_a_pick_refused_after_its_first_look_again_looks_once_more_from_higher_a
     assert len(calls) == 4 and axis.position == 0.05 + 0.05 + 0.1 + 0.1
 
 
+def test_by_default_a_pick_refused_after_two_looks_again_looks_a_third_time_and_goes_on():
+    planner = LookingAgain()
+    result, axis, calls = pick_refused_first(3, planner)
+    assert result.ok, result.reason
+    assert [v.split(":")[0] for v in result.views] == ["refusal 1", "refusal 2", "refusal 3"]
+    assert len(calls) == 5 and axis.position == 3 * 0.05 + 0.1 + 0.1
+
+
 def test_the_refusal_after_the_last_look_again_ends_the_pick_refused_where_the_moves_left_the_forks():
-    for views in (1, 2):
+    for views in (1, 2, 3):
         result, axis, _ = pick_refused_first(views + 1, LookingAgain(), ControllerConfig(views=views))
         assert not result.ok and result.refused and result.state == "fault"
         assert result.reason == f"measuring: refusal {views + 1}: a second line runs beside the unloaded edges"
