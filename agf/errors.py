@@ -50,10 +50,10 @@ class PalletHiddenError(MeasurementError):
 
     ``pallet_in_fork`` is where the hidden pallet roughly is (frame P in fork frame F, the pose the
     refused measurement found), so that the controller can move the forks out of the view and
-    measure again.
+    measure again; None where the image does not confirm that pose (the forks then do not move on it).
     """
 
-    def __init__(self, message: str, pallet_in_fork: Transform, found: object | None = None) -> None:
+    def __init__(self, message: str, pallet_in_fork: Transform | None, found: object | None = None) -> None:
         super().__init__(message, found, pallet_in_fork)
 
 

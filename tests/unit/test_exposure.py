@@ -120,11 +120,20 @@ def test_set_exposure_checks_its_range_and_a_file_cannot_change_its_exposure(tmp
 
 def test_a_refusal_is_overexposed_when_any_search_was_clipped_unless_the_forks_hid_the_pallet():
     clipped, other = OverexposedError("clipped"), MeasurementError("no pitch")
-    error = _refusal([other, clipped], _volume(), ["face", "regions"], None, None)
+    error = _refusal([other, clipped], _volume(), ["face", "regions"], None, None, None)
     assert isinstance(error, OverexposedError) and str(error).startswith("no pitch")
-    assert type(_refusal([other, other], _volume(), ["face", "regions"], None, None)) is MeasurementError
+    assert type(_refusal([other, other], _volume(), ["face", "regions"], None, None, None)) is MeasurementError
     hidden = PalletHiddenError("the forks hide 40%", Transform())
-    assert type(_refusal([clipped, hidden], _volume(), ["face", "regions"], None, None)) is PalletHiddenError
+    error = _refusal([clipped, hidden], _volume(), ["face", "regions"], None, None, Transform())
+    assert type(error) is PalletHiddenError and error.pallet_in_fork is not None
+
+
+def test_regression_a_hidden_pallet_whose_pose_the_image_does_not_confirm_is_refused_with_no_rough_pose():
+    """Campaign seed 7 pick 379: a hidden search's pose 159 mm too low moved the forks into the dock; the refusal
+    carries the pose only as the image confirmed it (``hidden_rough``), never the search's own."""
+    hidden = PalletHiddenError("the forks hide 40%", Transform())
+    error = _refusal([hidden], _volume(), ["face", "regions"], None, None, None)
+    assert type(error) is PalletHiddenError and error.pallet_in_fork is None
 
 
 def _volume():
