@@ -324,12 +324,14 @@ def test_regression_campaign_pick_205_of_seed_7_a_clipped_load_top_is_not_measur
     """Campaign pick 205 of seed 7: a loaded pallet whose load's top is clipped where the deck's top would be. Taken
     for a clipped deck (session 41's first campaign), the frame was refused as overexposed, and at 0.6 of the
     exposure the load's edges gave a pitch 0.185 deg off that was accepted and inserted. A load whose edges were
-    found is not a clipped deck: the frame is refused as before (its load's edges and face disagree)."""
+    found is not a clipped deck: the frame is refused as before (its load's edges and face disagree), and so are the
+    frames after the viewing moves (with the third, since session 45, one of them asks for a shorter exposure, and the
+    darker frame is refused too)."""
     scene = campaign_scene_of(7, 205)
     with SimulatedWorld(CONFIG, scene) as world:
         result = world.controller().run()
-    assert not result.ok and "the load's edges give a pitch of" in result.reason, result.reason
-    assert result.exposures == [] and result.measurements == []
+    assert not result.ok and result.measurements == [], result.reason
+    assert result.views and "the load's edges give a pitch of" in result.views[0], result.views
 
 
 def test_a_verifying_frame_whose_pitch_is_refused_is_confirmed_at_the_measured_pitch_and_the_pick_inserts(tmp_path):
