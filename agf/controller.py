@@ -179,9 +179,9 @@ class ControllerConfig:
     # against the floor beside it, which it does not). None of their 23 accepted measurements lay outside the
     # bounds. Over the whole campaign (session 42): 515 -> 548 inserted, none fewer, 2 of the 66 measurements the 33
     # accepted outside the bounds (the others' rate), and 46.1 -> 57.6 min: the third refused frame costs most. A third
-    # move by the same rules (session 45): of the first 64 loaded picks of that campaign refused after two, 4 inserted
-    # after a third, their measurements within 0.06 deg and 2.3 mm; a refused pick costs a truck a few seconds more,
-    # while one left standing costs a person's visit.
+    # move by the same rules (session 45): of the 413 picks of that campaign refused after two, 12 inserted after a
+    # third, one of them (617) after a verifying frame 0.199 deg off, and about 15 % more wall time; a refused pick
+    # costs a truck a few seconds more, while one left standing costs a person's visit.
     views: int = 3
     # One withdrawal, then the last frame's face is confirmed at the measured pitch (PickController confirm). Three
     # withdrawals (each 50 mm further back) inserted 6 of 27 picks of the seed 7 campaign refused after one, but in the
