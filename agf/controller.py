@@ -180,8 +180,8 @@ class ControllerConfig:
     # bounds. Over the whole campaign (session 42): 515 -> 548 inserted, none fewer, 2 of the 66 measurements the 33
     # accepted outside the bounds (the others' rate), and 46.1 -> 57.6 min: the third refused frame costs most. A third
     # move by the same rules (session 45): of the 413 picks of that campaign refused after two, 12 inserted after a
-    # third, one of them (617) after a verifying frame 0.199 deg off, and about 15 % more wall time; a refused pick
-    # costs a truck a few seconds more, while one left standing costs a person's visit.
+    # third, one of them (617) after a verifying frame 0.199 deg off, and 63.6 -> 70.1 min (run whole in session 46); a
+    # refused pick costs a truck a few seconds more, while one left standing costs a person's visit.
     views: int = 3
     # One withdrawal, then the last frame's face is confirmed at the measured pitch (PickController confirm). Three
     # withdrawals (each 50 mm further back) inserted 6 of 27 picks of the seed 7 campaign refused after one, but in the
