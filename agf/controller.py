@@ -448,9 +448,12 @@ class PickController:
         """Measure from the aligned forks; a refused measurement is taken again from further back along the
         insertion line (:meth:`Planner.withdraw_motion`) while the pick has a withdrawal left, and the last one's
         face confirmed where the plan expects it, at the pitch measured before (:meth:`_confirm`)."""
-        axes = None  # the plan's aligned axes
         while True:
             frame = self._read_frame()
+            # Where the forks are, not where they were sent: a drive stops within arrive_tolerance (0.11 deg of tilt)
+            # of its target, which the check of the pitch against the plan's (Planner.verify) would count as the
+            # pallet's.
+            axes = self._positions()
             try:
                 measurement = self._measure("verifying", frame, result.measurements[-1])
                 break
@@ -464,7 +467,6 @@ class PickController:
                     break
                 result.withdrawals.append(str(exc))
                 self._follow(motion, "verifying", result)
-                axes = motion.at(motion.duration)
         result.measurements.append(measurement)
         problem = self.planner.verify(measurement, result.plan, axes)
         if problem is not None:
@@ -472,7 +474,7 @@ class PickController:
         return "verified" if problem is None else "replan"
 
     def _confirm(self, result: PickResult, frame: Frame, refusal: MeasurementError,
-                 axes: Mapping[str, float] | None) -> PalletMeasurement:
+                 axes: Mapping[str, float]) -> PalletMeasurement:
         """The last verifying ``frame``'s pallet face confirmed where the plan expects it with the forks at ``axes``,
         at the pitch measured before (``confirm``), after the frame's own measurement gave ``refusal``; ``refusal``
         again, with the confirmation's reason, when there is no confirmation, it fails, or the plan was made again

@@ -68,7 +68,8 @@ def tolerance_margins(
 
 @dataclass(frozen=True)
 class InsertionPlan:
-    """Targets (axis name -> m or rad) and the verdict."""
+    """Targets (axis name -> m or rad) and the verdict; ``sigma_pitch`` (rad) is the standard deviation of the pitch
+    of the measurement it was made from."""
 
     safe: bool
     reason: str | None
@@ -77,6 +78,7 @@ class InsertionPlan:
     margin_mm: float
     margin_deg: float
     pallet_in_truck: Transform
+    sigma_pitch: float = 0.0
 
 
 def plan_insertion(
@@ -106,7 +108,8 @@ def plan_insertion(
         align, insert, limits, margin, margin_tilt, yaw, lateral if not side_shift else 0.0, forks, pallet, config
     )
     return InsertionPlan(
-        reason is None, reason, align, insert, margin * 1e3, math.degrees(margin_tilt), pallet_in_truck
+        reason is None, reason, align, insert, margin * 1e3, math.degrees(margin_tilt), pallet_in_truck,
+        measurement.sigma_pitch,
     )
 
 

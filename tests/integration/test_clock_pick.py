@@ -609,6 +609,17 @@ def test_open_campaign_wrong_accepts_of_seed_7(index):
     assert_no_measurement_outside_bounds(7, index, as_written=False)
 
 
+def test_regression_campaign_pick_480_of_seed_7_two_pitches_further_apart_than_their_sigmas_refuse_the_pick():
+    """Pick 480 planned on a first measurement 0.103 deg off in pitch and inserted, its verifying frame within the
+    bounds and 0.14 deg from it: 3.3 times the +-0.042 deg the two stated together. Since session 47 a verifying
+    pitch more than PickSettings.verify_pitch_sigmas (3) of them from the plan's refuses the pick: one of the two
+    measurements is further off than it says, and the plan's tilt margins take three sigmas of its own."""
+    result, _, truths = run_campaign_pick(7, 480, as_written=False)
+    assert not result.ok and result.state != "done"
+    assert "times the" in result.reason and "the two state together (at most 3)" in result.reason, result.reason
+    assert len(result.measurements) == 2  # the plan's and the verifying one: nothing inserted on either
+
+
 def test_only_runs_one_pick_of_a_campaign_as_the_campaign_draws_it(monkeypatch, tmp_path):
     drawn: list = []
 

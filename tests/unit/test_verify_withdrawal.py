@@ -177,3 +177,21 @@ def test_a_pick_re_planned_on_a_verifying_measurement_is_not_confirmed_at_either
     assert result.reason == ("verifying: refusal 2 while verifying; not confirmed at the pitch measured before, as "
                              "the pick re-planned on a verifying measurement that moved the pallet")
     assert result.measurements == ["measurement 1", "measurement 2"]
+
+
+class ShortAxis(IdealAxis):
+    """Stops 1.5 mm short of every setpoint above its last position, within ControllerConfig.arrive_tolerance."""
+
+    def _send_setpoint(self, position: float) -> None:
+        super()._send_setpoint(position - 0.0015 if position > self.position else position)
+
+
+def test_a_verifying_measurement_is_checked_against_the_forks_where_they_stopped_not_where_they_were_sent():
+    """A drive arrives within arrive_tolerance of its target (2 mm, or 0.11 deg of tilt), and the plan's check of a
+    verifying measurement's pitch against the first one's would otherwise count a tilt drive's shortfall as the
+    pallet's."""
+    axis, planner = ShortAxis(), Withdrawing()
+    result = PickController({"lift": axis}, BlankCamera(4, 4), lambda frame, prior: object(), planner,
+                            ControllerConfig()).run()
+    assert result.ok, result.reason
+    assert planner.verified_at == [{"lift": pytest.approx(0.1 - 0.0015)}]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -172,6 +173,34 @@ def test_a_verifying_measurement_that_raises_or_tips_the_pallet_is_refused_not_r
         assert "from where the forks expect it" in planner.verify(measurement, plan)
         return
     with pytest.raises(MeasurementError, match=refused + ".*refusing rather than guessing"):
+        planner.verify(measurement, plan)
+
+
+@pytest.mark.parametrize(
+    ("tipped_deg", "sigma_deg", "refused"),
+    [
+        (0.10, 0.03, False),  # within 3 sigmas of the difference (3 x 0.042 = 0.127 deg)
+        (-0.15, 0.03, True),  # campaign seed 7 pick 480: plan's pitch 0.103 deg off, the verifying frame's within
+        (0.15, 0.05, False),  # two looser measurements may differ more (3 x 0.071 = 0.212 deg)
+        (0.25, 0.05, True),
+    ],
+)
+def test_a_verifying_pitch_further_from_the_plans_than_their_sigmas_allow_is_refused(tipped_deg, sigma_deg, refused):
+    """Two measurements of a pallet that has not tipped must agree within what they state: the plan's tilt margins
+    take ``sigmas`` of its measurement's sigma_pitch, and a verifying pitch more than verify_pitch_sigmas standard
+    deviations of the difference away says one of the two is further off than that."""
+    from agf.errors import MeasurementError
+    from agf.measurement import PalletMeasurement
+
+    planner, plan = pitched_plan(2.5)  # its measurement states 0.03 deg
+    plan = dataclasses.replace(plan, sigma_pitch=math.radians(sigma_deg))
+    in_truck = plan.pallet_in_truck @ Transform.from_euler(0.0, 0.0, 0.0, 0.0, math.radians(tipped_deg), 0.0)
+    seen = fork_in_truck_from_axes(plan.align, MAST).inverse() @ in_truck
+    measurement = PalletMeasurement(seen, seen, False, 0.001, math.radians(sigma_deg))
+    if not refused:
+        assert planner.verify(measurement, plan) is None
+        return
+    with pytest.raises(MeasurementError, match=r"times the \+-0\.\d+ deg the two state together \(at most 3\)"):
         planner.verify(measurement, plan)
 
 
