@@ -524,7 +524,7 @@ def confirm_pallet(
                     f"{config.confirm_window * 1e3:.0f}); refusing rather than guessing"
                 )
             agreement = check_face_edges(image, camera, camera_in_fork, pose.pallet_in_fork, face, forks,
-                                         config.edges)
+                                         dataclasses.replace(config.edges, blank_disagrees=False))
             check_in_volume(pose.pallet_in_fork, volume)
             if not loaded:
                 check_kept_pitch(gray, image, camera, camera_in_fork, pallet, pose.pallet_in_fork, config)

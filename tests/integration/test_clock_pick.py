@@ -620,6 +620,20 @@ def test_regression_campaign_pick_480_of_seed_7_two_pitches_further_apart_than_t
     assert len(result.measurements) == 2  # the plan's and the verifying one: nothing inserted on either
 
 
+@pytest.mark.parametrize("index", (868, 992))
+def test_regression_campaign_picks_of_seed_7_a_face_edge_the_light_leaves_blank_does_not_refuse_the_confirmation(
+    index,
+):
+    """Measured within the bounds, these picks' verifying frames were refused twice, and their confirmations too,
+    for face edges agreeing 39-49 % with one group at 0 %: a face edge with no step beside it (a face top lit as the
+    deck top behind it) counted against the pose. A confirmation looks for the face where the plan placed it, and
+    since session 47 counts only the points where the image shows a step (EdgeAgreementConfig.blank_disagrees);
+    both insert, every measurement within the bounds."""
+    result, _, truths = run_campaign_pick(7, index, as_written=False)
+    assert result.ok and len(result.confirmations) == 1, result.reason
+    assert_within_bounds(result.measurements, truths)
+
+
 def test_only_runs_one_pick_of_a_campaign_as_the_campaign_draws_it(monkeypatch, tmp_path):
     drawn: list = []
 

@@ -19,7 +19,7 @@ from agf.geometry import Transform, transform_from_dict
 from agf.pallets import load_pallets
 from agf.paths import DEFAULT_CONFIG
 from agf.scene import load_scene
-from agf.vision.edge_agreement import check_face_edges, face_edge_agreement, line_of_sight
+from agf.vision.edge_agreement import EdgeAgreementConfig, check_face_edges, face_edge_agreement, line_of_sight
 from agf.vision.face_model import face_model_from_pallet
 from agf.vision.grey import grey_from_bgr
 from agf.vision.measure import measure_pallet
@@ -52,11 +52,17 @@ def test_true_pose_is_confirmed_and_agrees_better_than_moved_ones(rendered):
     assert all(m.score < own.score - 0.1 for m in moved), [m.score for m in moved]
 
 
+MEASURING = EdgeAgreementConfig()
+CONFIRMING = dataclasses.replace(MEASURING, blank_disagrees=False)  # as confirm_pallet checks
+
+
+@pytest.mark.parametrize("config", [MEASURING, CONFIRMING], ids=["measuring", "confirming"])
 @pytest.mark.parametrize("dz", [0.022, -0.022, 0.045])
-def test_pose_a_deck_board_off_is_refused(rendered, dz):
+def test_pose_a_deck_board_off_is_refused(rendered, dz, config):
     scene, image, camera, face = _scene("paper/unloaded-middle-flat", rendered)
     with pytest.raises(MeasurementError, match="does not confirm the measured pose"):
-        check_face_edges(image, camera, scene.camera_in_fork, _moved(scene.pallet.in_fork, 0.0, dz), face, CONFIG.forks)
+        check_face_edges(image, camera, scene.camera_in_fork, _moved(scene.pallet.in_fork, 0.0, dz), face, CONFIG.forks,
+                         config)
 
 
 def _along_sight(T: Transform, camera_in_fork: Transform, face, distance: float) -> Transform:
@@ -133,11 +139,14 @@ def test_regression_random_look_pose_turned_in_yaw_is_refused():
         check_face_edges(frame, camera, scene.camera_in_fork, accepted, face, CONFIG.forks)
 
 
-def test_pose_on_a_blank_image_is_refused(rendered):
+@pytest.mark.parametrize("config", [MEASURING, CONFIRMING], ids=["measuring", "confirming"])
+def test_pose_on_a_blank_image_is_refused(rendered, config):
+    """Confirming too, where an edge the image leaves blank does not count against the pose: nothing shown is no
+    face."""
     scene, image, camera, face = _scene("paper/unloaded-middle-flat", rendered)
     blank = np.full_like(image, 128)
     with pytest.raises(MeasurementError, match="face edges agree 0%"):
-        check_face_edges(blank, camera, scene.camera_in_fork, scene.pallet.in_fork, face, CONFIG.forks)
+        check_face_edges(blank, camera, scene.camera_in_fork, scene.pallet.in_fork, face, CONFIG.forks, config)
 
 
 @pytest.mark.skipif(not FOREIGN.is_dir(), reason="../shared/data/foreign-renders is not beside this checkout")
