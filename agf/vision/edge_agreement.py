@@ -73,7 +73,7 @@ class EdgeAgreementConfig:
     # and there an edge the light leaves blank (a face top lit as the deck top behind it) is no evidence against
     # it: the 14 picks of `agf simulate --random 1000 --seed 7` (session 47) whose confirmations were refused for
     # face edges agreeing 16-50 % had all been measured within the bounds. Counted so, 5 insert (297, 376, 773, 868,
-    # 992), every measurement within the bounds; the 136 picks that confirm otherwise end as before.
+    # 992), every measurement within the bounds; the other 131 picks that reached a confirmation end as before.
     blank_disagrees: bool = True
 
 
