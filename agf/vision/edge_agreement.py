@@ -238,13 +238,17 @@ def _move(index: int, config: EdgeAgreementConfig) -> str:
 
 
 def _per_group(agree: NDArray, seen: NDArray, groups: NDArray, config: EdgeAgreementConfig) -> EdgeAgreement:
-    fractions, counts = {}, {}
-    for g, name in GROUPS.items():
-        in_group = seen & (groups == g)
-        counts[name] = int(in_group.sum())
-        fractions[name] = float(agree[in_group].mean()) if in_group.any() else 0.0
-    counted = [fractions[name] for name in GROUPS.values() if counts[name] >= config.min_seen]
-    return EdgeAgreement(fractions, counts, float(np.mean(counted)) if counted else 0.0)
+    """The :class:`EdgeAgreement` of the points ``seen`` (N,) bool, of which ``agree`` (N,) bool, in edge ``groups``
+    (N,) int (keys of :data:`GROUPS`); counted with one ``bincount`` each, as it runs for every pose and its rivals."""
+    size = len(GROUPS)
+    counts = np.bincount(groups[seen], minlength=size)
+    fractions = np.divide(np.bincount(groups[seen & agree], minlength=size), counts, out=np.zeros(size),
+                          where=counts > 0)
+    counted = fractions[counts >= config.min_seen]
+    names = list(GROUPS.values())
+    score = float(np.mean(counted)) if counted.size else 0.0
+    return EdgeAgreement(dict(zip(names, fractions.tolist(), strict=True)),
+                         dict(zip(names, counts.tolist(), strict=True)), score)
 
 
 def _gradient_noise(smooth: NDArray[np.float32]) -> NDArray[np.float32]:
