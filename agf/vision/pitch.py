@@ -74,7 +74,10 @@ class PitchConfig:
     # within the 0.1 deg the measurement promises
     # Two edges of the pallet meet at a point on its axis, which the face's pose puts within a degree of
     # yaw; shadows of two uprights across a deck meet where the light is (random looks: 2.0 deg across,
-    # accepted 4.2 deg off in pitch). Calls within 0.15 deg of the true pitch ran at most 1.14 deg across.
+    # accepted 4.2 deg off in pitch). Calls within 0.15 deg of the true pitch ran at most 1.14 deg across. A pairing
+    # with a rival line beside an edge that runs further across is no rival pitch either (session 48): campaign seed 7,
+    # picks 13 and 27, such pairings 1.57 and 3.2 deg across (3.7 and 6.9 deg from the pair's pitch, the pair's 0.01
+    # and 0.04 across) refused deck edges that measured 0.04 and 0.00 deg off without them.
     max_across: float = math.radians(1.5)
     # Many tight lines on the face give the pitch without the load's edges: on random looks the two edges,
     # fitted alone, sat 0.4-0.55 deg off on carton joints or background while 15 or more lines within
@@ -172,7 +175,8 @@ class PitchEvidence:
         through it): only then may they move the pose (:func:`pose_from_deck_edges`); a rival that gives the same
         pitch leaves the pitch valid.
     candidates : tuple of float
-        The pitches (rad) of the edge pair and of every pair with a rival line in it.
+        The pitches (rad) of the edge pair and of every pair with a rival line in it whose direction runs along the
+        pallet's axis (within the configured ``max_across``).
     face_points : (N, 3) array or None
         Loaded only: directions (camera frame) of the edge points between the load's edges.
     note : str
@@ -974,10 +978,14 @@ def _pair_evidence(
                     direction = common_direction(left.normal, right.normal, predicted)
                 except ValueError:
                     return found(False, math.nan, nan)
+                if pitches and _across(direction, search) > config.max_across:
+                    # Not both the pallet's edges (as the pair itself is refused so below): a line beside an edge
+                    # that pairs so is not parallel to the pallet's axis, and its pitch is no rival's.
+                    continue
                 pitches.append(_pitch_from_direction(search.camera_in_fork.apply_direction(direction),
                                                      search.pallet_in_fork, search.axis_index))
     direction = common_direction(lines[0].normal, lines[1].normal, predicted)
-    across = math.degrees(math.asin(min(abs(float(direction @ search.pallet_in_camera.rotation[:, 1])), 1.0)))
+    across = math.degrees(_across(direction, search))
     if across > math.degrees(config.max_across):
         return found(False, math.nan, nan, note=f"the {search.hypothesis} edges run {across:.1f} deg across the "
                      f"pallet's axis (at most {math.degrees(config.max_across):.1f}): they are not the pallet's")
@@ -988,6 +996,11 @@ def _pair_evidence(
                                                search.pallet_in_fork, search.axis_index), spread / 2)
     placed = all(e.rival is None or e.pinned for e in edges)
     return found(True, pitch, direction, sigma=sigma, placed=placed, candidates=tuple(pitches))
+
+
+def _across(direction: Array, search: _Search) -> float:
+    """How far (rad) ``direction`` (camera frame) runs across the pallet's axis, towards its Y axis."""
+    return math.asin(min(abs(float(direction @ search.pallet_in_camera.rotation[:, 1])), 1.0))
 
 
 def tilt_sigma(points: Array, normal: Array, blocks: int = 8) -> tuple[Array, float]:

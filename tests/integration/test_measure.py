@@ -275,6 +275,20 @@ def test_regression_a_face_matched_with_a_deck_board_nearer_along_the_line_of_si
     assert within_bounds(errors(scene, detail.measurement)), errors(scene, detail.measurement)
 
 
+@pytest.mark.parametrize("pick", (13, 27))
+def test_regression_a_rival_pairing_that_runs_across_the_pallets_axis_does_not_make_the_deck_edges_ambiguous(pick):
+    """Campaign seed 7, first frames of picks 13 and 27 (unloaded, pitched -4.01 and 0.69 deg): a line beside one
+    deck edge, paired with the other edge, gave a pitch 3.7 and 6.9 deg from the pair's, a direction 1.57 and 3.2 deg
+    across the pallet's axis (the pair's: 0.01 and 0.04), and the pair was refused as ambiguous ("a second line runs
+    beside the unloaded edges"). Two lines whose common direction leaves the pallet's axis that far are not its two
+    edges (PitchConfig.max_across, which already refused such a pair), so that pairing offers no other pitch."""
+    scene, image = campaign_first_frame(7, pick)
+    pallet, camera = CATALOGUE[scene.pallet.type], load_camera(scene.camera)
+    detail = measure_pallet(image, camera, scene.camera_in_fork, pallet, CONFIG.vision.search, forks=CONFIG.forks)
+    assert not detail.measurement.loaded
+    assert within_bounds(errors(scene, detail.measurement)), errors(scene, detail.measurement)
+
+
 def test_regression_a_load_face_whose_lines_fix_the_pitch_to_0_02_deg_gives_it_despite_a_second_load_edge():
     """Campaign seed 7, pick 173 (loaded, pitch -1.84 deg): a second line beside a load edge made the edges give two
     pitches, and 12 lines on the load's face, fewer than the 15 that counted alone, gave it to +-0.02 deg: refused.
