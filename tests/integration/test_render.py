@@ -113,11 +113,13 @@ def test_campaign_renderer_matches_the_reference(look, mean_abs, p99):
 # sha1 of the region the vision reads (fast_render._region, 24 px in from its border for the blur kernels
 # and JPEG's blocks), rendered by the campaign renderer before it was made three times faster: the frames
 # of random looks whose wrong accepts the regression scenes hold (paper/loaded-middle-flat look 1306 is
-# fixed-wrong-accepts/loaded-middle-flat-look-5)
+# fixed-wrong-accepts/loaded-middle-flat-look-5). The random looks' hashes are since session 48's: the carton texture
+# no longer draws an upright joint at a face's sides (tests/unit/test_textures.py), which changes carton surfaces (loads,
+# clutter) alone (the fixed look, without that texture, keeps the hash it had)
 REGION_HASHES = {
-    ("paper/loaded-low-flat", 4): "c3892ce51463a44d79c0d36bc73690be469a6547",
-    ("paper/loaded-middle-flat", 1306): "65cb78cdde510e25399a28b6917a69f37c809d93",
-    ("paper/unloaded-middle-front-up", 1): "6ef6c44597894afc3f677e11ae116d006f539ade",
+    ("paper/loaded-low-flat", 4): "60eec1bcbb7213992be88f9a73cc34a7329e8a9b",
+    ("paper/loaded-middle-flat", 1306): "a6752ca7d1cfaa454ddf864956abcf31f97bd23e",
+    ("paper/unloaded-middle-front-up", 1): "eb6490eb32940e17c1eb404319085090cdaf542e",
     ("paper/loaded-low-flat", None): "195bde2812b27f7790df2cdb452aa2956317d5a5",
 }
 
