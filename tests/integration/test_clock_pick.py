@@ -205,15 +205,15 @@ def test_a_refused_measurement_far_above_the_forks_is_measured_again_from_level_
 
 
 def test_a_refused_measurement_with_no_level_view_is_measured_again_from_higher_and_the_pick_inserts():
-    """Campaign pick 23 of seed 7: a loaded pallet 94 mm below the forks, pitched 5.0 deg, refused ("a second line
-    runs beside the loaded edges") with no view level with it that helps (it lies below: view_helps never lowers the
-    forks). The forks rise insertion.look_again_lift_mm (100), lift only, and from there it is measured and picked;
-    before session 40 the pick ended refused. (Should the vision one day measure its first frame, this test needs
-    another such pick: it tests the move, not that refusal.)"""
-    scene = campaign_scene_of(7, 23)
+    """Campaign pick 95 of seed 7: a loaded pallet 12 mm below the forks, pitched -5.0 deg, refused ("no pitch:
+    neither the deck edges ... nor the load edges ...") with no view level with it that helps (it lies below:
+    view_helps never lowers the forks). The forks rise insertion.look_again_lift_mm (100), lift only, and from there it
+    is measured and picked. (Pick 23 showed it until session 48, whose renderer change let the vision measure its
+    first frame; should that happen here, this test needs another such pick: it tests the move, not that refusal.)"""
+    scene = campaign_scene_of(7, 95)
     start, result, summary, viewing = viewed_pick(scene)
     assert result.ok, result.reason
-    assert len(result.views) == 1 and "a second line runs beside" in result.views[0], result.views
+    assert len(result.views) == 1, result.views
     assert summary["viewing_moves"] == 1 and not summary["collision"]
     assert viewing[-1]["actual"]["lift"] - start["lift"] == pytest.approx(0.1, abs=0.002)
     assert all(row["actual"]["lift"] >= start["lift"] - 0.002 for row in viewing)  # never down
@@ -235,12 +235,13 @@ def test_a_pick_refused_from_higher_too_looks_once_more_from_higher_still_and_in
 
 
 def test_a_pick_refused_after_two_viewing_moves_makes_a_third_and_inserts():
-    """Campaign pick 57 of seed 7: a loaded pallet 49 mm below the forks, pitched 1.9 deg, refused at the start ("the
-    loaded edges do not settle on one pitch"), from 100 mm higher (the same) and from 200 mm higher ("the 4 lines on
-    the load's face give its pitch only to ..."; session 44: the pick ended refused there), is measured from 300 mm
-    higher (``ControllerConfig.views`` 3 since session 45) and picked. (Should the vision one day measure one of the
-    earlier frames, this test needs another such pick: it tests the third move, not those refusals.)"""
-    scene = campaign_scene_of(7, 57)
+    """Campaign pick 4 of seed 7: a loaded pallet 53 mm above the forks, refused at the start ("the 11 lines on the
+    load's face give its pitch only to ..."), from 100 mm higher and from 200 mm higher ("the load's edges give a
+    pitch of ..."), is measured from 300 mm higher (``ControllerConfig.views`` 3 since session 45) and picked. (Pick 57
+    showed it until session 48's renderer change, after which its first frame measures; should the vision one day
+    measure one of the earlier frames, this test needs another such pick: it tests the third move, not those
+    refusals.)"""
+    scene = campaign_scene_of(7, 4)
     start, result, summary, viewing = viewed_pick(scene)
     assert result.ok, result.reason
     assert len(result.views) == 3 and summary["viewing_moves"] == 3 and not summary["collision"]
@@ -261,19 +262,20 @@ def test_regression_campaign_pick_379_of_seed_7_a_hidden_pallet_whose_pose_the_i
     assert all(row["actual"]["lift"] >= start["lift"] - 0.002 for row in viewing)
 
 
-def test_regression_campaign_pick_763_of_seed_7_hidden_after_looking_again_ends_refused_not_faulted():
-    """Seed 7 pick 763 (loaded, 247 mm below the forks): refused at the start, and from 100 mm higher the forks hide
+def test_regression_a_pick_hidden_after_looking_again_ends_refused_not_faulted():
+    """Seed 7 pick 763 (loaded, 247 mm below the forks): refused at the start, and from 100 mm higher the forks hid
     its pockets with their tips 12 mm from its face, too close for the viewing move. With a second view allowed the
-    viewing move's own error ended the pick as faulted; the vision's refusal ends it, the forks where the first
-    look left them."""
-    scene = campaign_scene_of(7, 763)
+    viewing move's own error ended the pick as faulted; the vision's refusal ends it, the forks where the last look
+    left them. Since session 48's renderer change pick 763 is refused for its load's edges instead; pick 342
+    (unloaded, 298 mm below the forks) shows the same end after two looks from higher."""
+    scene = campaign_scene_of(7, 342)
     with SimulatedWorld(CONFIG, scene) as world:
         start = world.positions()
         result = world.controller().run()
         end = world.positions()
     assert not result.ok and result.refused, result.reason
-    assert result.reason.startswith("measuring: the forks hide") and len(result.views) == 1
-    assert end["lift"] - start["lift"] == pytest.approx(0.1, abs=0.002)
+    assert result.reason.startswith("measuring: the forks hide") and len(result.views) == 2
+    assert end["lift"] - start["lift"] == pytest.approx(0.2, abs=0.002)
 
 
 def test_a_deck_clipped_beside_its_edges_is_measured_again_with_a_shorter_exposure_and_the_pick_inserts():
@@ -326,12 +328,9 @@ def test_regression_campaign_pick_205_of_seed_7_a_clipped_load_top_is_not_measur
     exposure the load's edges gave a pitch 0.185 deg off that was accepted and inserted. A load whose edges were
     found is not a clipped deck: the frame is refused as before (its load's edges and face disagree), and so are the
     frames after the viewing moves (with the third, since session 45, one of them asks for a shorter exposure, and the
-    darker frame is refused too)."""
-    scene = campaign_scene_of(7, 205)
-    with SimulatedWorld(CONFIG, scene) as world:
-        result = world.controller().run()
-    assert not result.ok and result.measurements == [], result.reason
-    assert result.views and "the load's edges give a pitch of" in result.views[0], result.views
+    darker frame is refused too). Since session 48's renderer change (no carton joint along a load's side) the pick
+    inserts after three viewing moves and a shorter exposure: every measurement it accepts lies within the bounds."""
+    assert_no_measurement_outside_bounds(7, 205)
 
 
 def test_a_verifying_frame_whose_pitch_is_refused_is_confirmed_at_the_measured_pitch_and_the_pick_inserts(tmp_path):
@@ -421,13 +420,13 @@ def test_regression_campaign_picks_of_seed_7_a_rival_pairing_within_0_05_deg_kee
     assert_no_measurement_outside_bounds(7, index)
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason="verified 0.121 deg off in pitch: open, see issue 17")
-def test_open_wrong_accept_campaign_pick_107_of_seed_7_verified_outside_the_bounds_after_two_viewing_moves():
+def test_regression_campaign_pick_107_of_seed_7_verified_outside_the_bounds_after_two_viewing_moves():
     """Seed 7 pick 107 with two viewing moves (session 42): refused from the start and after its first move, measured
     after the second (the forks 486 mm above the start, level with the pallet) within the bounds (pitch 0.004 deg
     off) and inserted with 23.7 mm clearance; but its verifying frame, from the aligned forks, was accepted 0.121 deg
-    off in pitch (the plan is not made again from a verifying measurement that agrees with it). Open: the verifying
-    frame's pitch must be refused or within the bounds."""
+    off in pitch (the plan is not made again from a verifying measurement that agrees with it). Open until session
+    48, whose renderer change (no carton joint along a load's side) changed its frames: none of the measurements it
+    accepts now lies outside the bounds, which this test keeps."""
     assert_no_measurement_outside_bounds(7, 107)
 
 
@@ -517,9 +516,13 @@ def test_regression_campaign_picks_of_seed_7_a_deck_clipped_in_one_channel_gives
 # and 890 (unloaded, first frame +0.136 deg and z 4.47 mm) joined; every other pick accepted what it did before.
 # Session 45: a third viewing move (ControllerConfig.views 3). 617 (inserted after it) joined: its verifying frame was
 # accepted -0.199 deg off in pitch, its first measurement, from 300 mm higher, within the bounds.
+# Session 48: the campaign renderer no longer draws a carton joint along a face's side, which changed the frames of
+# every loaded pick (and of a few with carton clutter). Picks 221, 488, 634, 638, 724, 729 and 808 left the list: none
+# of their accepted measurements lies outside the bounds now (most of them loaded, refused or measured within them).
+# Picks 209 (loaded, verifying frame +0.11 deg) and 227 (loaded, first frame -0.182 deg, then refused) joined, found by
+# `agf simulate --random 1000 --seed 7` on that code.
 OPEN_CAMPAIGN_WRONG_ACCEPTS = (
-    55, 82, 122, 221, 324, 336, 413, 435, 480, 488, 554, 580, 617, 632, 634, 638, 660, 674, 723, 724, 729, 764,
-    791, 808, 890,
+    55, 82, 122, 209, 227, 324, 336, 413, 435, 480, 554, 580, 617, 632, 660, 674, 723, 764, 791, 890,
 )
 
 

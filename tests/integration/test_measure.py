@@ -311,18 +311,14 @@ def test_regression_a_loads_edges_at_its_true_pose_give_its_pitch_in_campaign_fr
 def test_regression_a_load_face_whose_lines_fix_the_pitch_to_0_02_deg_gives_it_despite_a_second_load_edge():
     """Campaign seed 7, pick 173 (loaded, pitch -1.84 deg): a second line beside a load edge made the edges give two
     pitches, and 12 lines on the load's face, fewer than the 15 that counted alone, gave it to +-0.02 deg: refused.
-    Lines that fix the pitch to PitchConfig.face_alone_tight now count alone, however many."""
-    from agf.vision.measure import MeasureConfig
-    from agf.vision.pitch import PitchConfig
-
+    Lines that fix the pitch to PitchConfig.face_alone_tight now count alone, however many. Since session 48's
+    renderer change (no carton joint along a load's side) the frame's load edges agree with its face by themselves,
+    and it no longer needs that rule (which no other frame shows yet): it must stay measured within the bounds."""
     scene, image = campaign_first_frame(7, 173)
     pallet, camera = CATALOGUE[scene.pallet.type], load_camera(scene.camera)
     detail = measure_pallet(image, camera, scene.camera_in_fork, pallet, CONFIG.vision.search, forks=CONFIG.forks)
     assert detail.measurement.loaded
     assert within_bounds(errors(scene, detail.measurement)), errors(scene, detail.measurement)
-    with pytest.raises(MeasurementError, match="second line runs beside the loaded edges"):
-        measure_pallet(image, camera, scene.camera_in_fork, pallet, CONFIG.vision.search, forks=CONFIG.forks,
-                       config=MeasureConfig(pitch=PitchConfig(face_alone_tight=0.0)))
 
 
 def test_regression_deck_edges_found_from_one_side_only_settle_on_their_pitch():
@@ -368,18 +364,14 @@ def test_regression_a_face_whose_deck_edges_disagree_with_it_by_32_mm_is_refused
 def test_a_load_seen_from_above_is_measured_where_its_top_face_agrees_with_its_face_lines():
     """Campaign seed 7, pick 10 (loaded, camera 0.2 m above the load): a line beside a load edge gave the edges two
     pitches 0.17 and 0.27 deg off, and the face's lines alone were not sure enough: refused. The side edges of the
-    load's top face (PitchConfig.top_*) agree with the face's lines, and the two together give the pitch."""
-    from agf.vision.measure import MeasureConfig
-    from agf.vision.pitch import PitchConfig
-
+    load's top face (PitchConfig.top_*) agree with the face's lines, and the two together give the pitch. Since
+    session 48's renderer change (no carton joint along a load's side) the frame is measured without its top face
+    too (which no other frame shows yet): it must stay measured within the bounds."""
     scene, image = campaign_first_frame(7, 10)
     pallet, camera = CATALOGUE[scene.pallet.type], load_camera(scene.camera)
     detail = measure_pallet(image, camera, scene.camera_in_fork, pallet, CONFIG.vision.search, forks=CONFIG.forks)
     assert detail.measurement.loaded
     assert within_bounds(errors(scene, detail.measurement)), errors(scene, detail.measurement)
-    with pytest.raises(MeasurementError):
-        measure_pallet(image, camera, scene.camera_in_fork, pallet, CONFIG.vision.search, forks=CONFIG.forks,
-                       config=MeasureConfig(pitch=PitchConfig(top_max_sigma=0.0)))
 
 
 def test_regression_a_load_top_agreeing_with_a_rival_pairing_is_not_taken():
