@@ -114,8 +114,8 @@ def test_campaign_renderer_matches_the_reference(look, mean_abs, p99):
 # and JPEG's blocks), rendered by the campaign renderer before it was made three times faster: the frames
 # of random looks whose wrong accepts the regression scenes hold (paper/loaded-middle-flat look 1306 is
 # fixed-wrong-accepts/loaded-middle-flat-look-5). The random looks' hashes are since session 48's: the carton texture
-# no longer draws an upright joint at a face's sides (tests/unit/test_textures.py), which changes carton surfaces (loads,
-# clutter) alone (the fixed look, without that texture, keeps the hash it had)
+# no longer draws an upright joint at a face's sides (tests/unit/test_textures.py), which changes carton surfaces
+# (loads, clutter) alone (the fixed look, without that texture, keeps the hash it had)
 REGION_HASHES = {
     ("paper/loaded-low-flat", 4): "60eec1bcbb7213992be88f9a73cc34a7329e8a9b",
     ("paper/loaded-middle-flat", 1306): "a6752ca7d1cfaa454ddf864956abcf31f97bd23e",
