@@ -154,6 +154,9 @@ def _wood(sx, sy, sz, hx, hy, hz, axis, seed, detail):
     return value
 
 
+JOINT = 0.003  # m: a point this close to a carton's border lies on the joint between cartons
+
+
 @njit(cache=True)
 def _carton(cb, cg, cr, u, v, u_size, seed, detail):
     """Stacked cartons: staggered joints, a tape stripe over each carton, some labels, stretch film, on a face
@@ -180,8 +183,8 @@ def _carton(cb, cg, cr, u, v, u_size, seed, detail):
     # the load's edges gave a pitch 0.2-1.4 deg off at the true pose of loaded random looks, from the left edge alone.
     # The joint along the bottom row's lower edge stays: the dark line where cartons stand on the deck, which a face
     # match reads (without it, campaign seed 7 pick 58 was measured 6.4 mm high).
-    upright = min(fu, 1 - fu) * width < 0.003 and 0.003 <= u <= u_size - 0.003
-    if upright or min(fv, 1 - fv) * height < 0.003:
+    upright = min(fu, 1 - fu) * width < JOINT and JOINT <= u <= u_size - JOINT
+    if upright or min(fv, 1 - fv) * height < JOINT:
         b, g, r = b * 0.35, g * 0.35, r * 0.35
     if detail > 0:  # stretch film: bright wrap bands and streaks
         film = detail * min(max(fbm(u / 0.6 + v / 0.08, v / 0.15, seed + 11, 2) * 1.6 - 0.5, 0.0), 1.0)

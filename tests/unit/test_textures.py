@@ -13,10 +13,10 @@ JOINT_SHADE = 0.35  # a joint's tone, of the carton's
 
 
 @pytest.mark.parametrize("seed", RNG.uniform(0, 1e6, 12).round())
-def test_regression_no_carton_joint_runs_along_a_faces_outline(seed):
-    """Until session 48 the carton texture drew a joint (a 3 mm seam at 0.35 of the carton's tone) along a face's
-    outline where its staggered rows began there: inside a load's left edge in every other row, and never along the
-    right one. Fitted through the seam in some rows and the outline in others, the load's left edge leaned 1-6 px
+def test_regression_no_upright_carton_joint_runs_along_a_faces_side(seed):
+    """Until session 48 the carton texture drew an upright joint (a 3 mm seam at 0.35 of the carton's tone) along a
+    face's side where its staggered rows began there: inside a load's left edge in every other row, and never along
+    the right one. Fitted through the seam in some rows and the outline in others, the load's left edge leaned 1-8 px
     over its height, and the load's edges gave a pitch 0.2-1.4 deg off at the true pose of loaded campaign frames.
     Beside either end of a face, the texture 1.5 mm in is never the joint's shade of what lies 4.5 mm in (a label's
     or the tape's edge between the two may change it otherwise)."""
