@@ -134,7 +134,9 @@ class MeasureConfig:
     # lit as the deck behind it, or a face bottom as dark as what the pallet stands on, shows no step there. At the
     # true poses of campaign seed 7's unloaded first frames whose face and deck edges were found, 14 of 60 refused
     # for face edges agreeing 16-47 %, 6 of them agreeing 68-85 % where the image showed a step, with no other place
-    # explaining them better (picks 3, 65, 204, 258, 383, 606).
+    # explaining them better (picks 3, 65, 204, 258, 383, 606). Not for a verifying frame (measure_pallet's
+    # ``verifying``): in `agf simulate --random 1000 --seed 7` it let pick 268's verifying frame through 0.115 deg
+    # off in pitch (its first measurement 0.007 deg off); a refused verifying frame is confirmed at the plan's pitch.
     placed_blank_disagrees: bool = False
     # A face confirmed where a plan expects it (confirm_pallet) is searched this far around it (m) and must be found
     # within it: the fine fit converged on a face 150 mm from where it was started, and a pallet moved that far since
@@ -169,6 +171,7 @@ def measure_pallet(
     *,
     forks: ForkGeometry | None = None,
     prior: Transform | None = None,
+    verifying: bool = False,
     config: MeasureConfig = MeasureConfig(),
 ) -> MeasureDetail:
     """Measure the pallet (pose, pitch, loaded or not) or raise :class:`MeasurementError` with the reason.
@@ -178,6 +181,11 @@ def measure_pallet(
     its level template 60-300 mm off, and the pitch measured there was refused. A refusal's
     :class:`MeasurementError` carries the :class:`Findings` of the first attempt in ``found``, and its pose in
     ``pallet_in_fork`` only when the image confirms that pose's face edges on average.
+
+    ``verifying``: the frame measures again a pallet a plan was made from (verifying it, or after a re-plan). Its
+    face edges with no step beside them then count against the deck edges' pose too (see
+    :attr:`MeasureConfig.placed_blank_disagrees`): refused, such a face is confirmed at the plan's pitch
+    (:func:`confirm_pallet`), which draws no new pitch.
     """
     start = time.perf_counter()
     timing: dict[str, float] = {}
@@ -408,7 +416,7 @@ def measure_pallet(
         edges are judged where the image shows a step (:attr:`MeasureConfig.placed_blank_disagrees`)."""
         t = time.perf_counter()
         refusals = []
-        tolerant = dataclasses.replace(config.edges, blank_disagrees=config.placed_blank_disagrees)
+        tolerant = dataclasses.replace(config.edges, blank_disagrees=config.placed_blank_disagrees or verifying)
         try:
             for k, candidate in enumerate(poses):
                 try:

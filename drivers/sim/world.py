@@ -208,7 +208,8 @@ class SimulatedWorld:
 
         def measure(frame: Frame, prior: PalletMeasurement | None) -> PalletMeasurement:
             return counted(frame, measure_pallet(
-                frame.image, camera, calibration, self.pallet, self.search(), forks=self.config.forks
+                frame.image, camera, calibration, self.pallet, self.search(), forks=self.config.forks,
+                verifying=prior is not None,
             ).measurement)
 
         def confirm(frame: Frame, expected: Transform, measured: PalletMeasurement) -> PalletMeasurement:

@@ -624,6 +624,14 @@ def test_regression_campaign_pick_480_of_seed_7_two_pitches_further_apart_than_t
     assert len(result.measurements) == 2  # the plan's and the verifying one: nothing inserted on either
 
 
+def test_regression_campaign_pick_268_of_seed_7_a_verifying_frame_counts_its_blank_face_edges():
+    """With the deck edges' pose judged by the face edges the image shows a step beside (session 49), pick 268's
+    verifying frame, refused before for face edges agreeing 34 % (its face top 0 %), was accepted 0.115 deg off in
+    pitch, its first measurement 0.007 deg off, and the pick inserted. A verifying frame counts its blank face edges
+    as before (measure_pallet's ``verifying``)."""
+    assert_no_measurement_outside_bounds(7, 268, as_written=False)
+
+
 @pytest.mark.parametrize("index", (868, 992))
 def test_regression_campaign_picks_of_seed_7_a_face_edge_the_light_leaves_blank_does_not_refuse_the_confirmation(
     index,
