@@ -6,10 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.sim.textures import _carton
+from drivers.sim.textures import JOINT_SHADE, _carton
 
 RNG = np.random.default_rng(48)
-JOINT_SHADE = 0.35  # a joint's tone, of the carton's
 
 
 @pytest.mark.parametrize("seed", RNG.uniform(0, 1e6, 12).round())
