@@ -15,12 +15,14 @@ from agf.paths import DEFAULT_CONFIG
 from agf.vision.hough import SphereLine, fit_plane_normal
 from agf.vision.pitch import (
     HIGHLIGHT_REACH,
+    FaceDirection,
     PitchConfig,
     PitchEvidence,
     _edge_points,
     _line,
     _line_through,
     _panorama_over,
+    _without_vague_face,
     deck_corner_misses,
     direction_of_parallel_lines,
     edge_highlights,
@@ -58,6 +60,35 @@ def test_deck_edges_recover_y_z_yaw_and_pitch_but_keep_x(seed):
     # x is only what the start had: the deck edges run along it.
     along = found.translation - truth.translation
     np.testing.assert_allclose(along - (along @ truth.rotation[:, 0]) * truth.rotation[:, 0], 0, atol=1e-9)
+
+
+def load_edges(pitch_deg: float, sigma_deg: float = 0.03) -> PitchEvidence:
+    """A valid pair of load edges at ``pitch_deg`` (its only candidate), to ``sigma_deg``."""
+    pitch = math.radians(pitch_deg)
+    return PitchEvidence("loaded", 0.9, True, pitch, np.array([0.0, 0.0, 1.0]), None, [], [], math.radians(sigma_deg),
+                         candidates=(pitch,))
+
+
+def face_lines(pitch_deg: float, sigma_deg: float) -> FaceDirection:
+    return FaceDirection(np.array([0.0, 0.0, 1.0]), math.radians(pitch_deg), math.radians(sigma_deg), 8)
+
+
+def test_a_vague_face_that_agrees_with_the_load_edges_is_dropped_and_its_miss_widens_their_sigma():
+    config = PitchConfig()
+    pair, face = _without_vague_face(load_edges(1.0), face_lines(1.08, 0.1), config)
+    assert face is None
+    assert pair.valid and pair.pitch == pytest.approx(math.radians(1.0))
+    assert math.degrees(pair.sigma) == pytest.approx(math.hypot(0.03, 0.04))
+
+
+def test_a_sure_face_or_a_face_that_disagrees_is_kept_for_the_load_edges_to_answer():
+    config = PitchConfig()
+    edges = load_edges(1.0)
+    sure = face_lines(1.08, 0.05)
+    far = face_lines(1.0 + math.degrees(config.face_agreement) + 0.01, 0.1)
+    for face in (sure, far, None):
+        kept, answered = _without_vague_face(edges, face, config)
+        assert kept is edges and answered is face
 
 
 def test_deck_edges_need_a_valid_unloaded_hypothesis():
