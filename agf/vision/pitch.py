@@ -415,17 +415,11 @@ def loaded_evidence(
     alone = face.sigma <= config.face_alone_tight or (
         face.lines >= config.face_alone_lines and face.sigma <= config.face_alone_sigma
     )
-    note = ""
     if miss > config.face_agreement and not alone:
-        note = _edges_against_face(pair.candidates, face)
-    elif face.sigma > config.face_max_sigma:
-        note = (f"the {face.lines} lines on the load's face give its pitch only to +-{math.degrees(face.sigma):.2f} "
-                f"deg (at most {math.degrees(config.face_max_sigma):.3f})")
-    if note:
-        lead = face.pitch if miss > config.face_agreement and face.sigma <= config.face_max_sigma else math.nan
-        return _confirmed_by_load_top(_refused(pair, note, lead), face, gray, camera, camera_in_fork, pallet,
-                                      pallet_in_fork, config, colour)
-    if alone or miss > config.face_agreement:
+        lead = face.pitch if face.sigma <= config.face_max_sigma else math.nan
+        return _confirmed_by_load_top(_refused(pair, _edges_against_face(pair.candidates, face), lead), face, gray,
+                                      camera, camera_in_fork, pallet, pallet_in_fork, config, colour)
+    if alone:
         sigma = face.sigma if miss > config.face_agreement else math.hypot(face.sigma, miss / 2)
         return dataclasses.replace(pair, valid=True, pitch=face.pitch, direction=face.direction, ambiguous=False,
                                    sigma=sigma)

@@ -235,17 +235,18 @@ def test_a_pick_refused_from_higher_too_looks_once_more_from_higher_still_and_in
 
 
 def test_a_pick_refused_after_two_viewing_moves_makes_a_third_and_inserts():
-    """Campaign pick 4 of seed 7: a loaded pallet 53 mm above the forks, refused at the start ("the 11 lines on the
-    load's face give its pitch only to ..."), from 100 mm higher and from 200 mm higher ("the load's edges give a
-    pitch of ..."), is measured from 300 mm higher (``ControllerConfig.views`` 3 since session 45) and picked. (Pick 57
-    showed it until session 48's renderer change, after which its first frame measures; should the vision one day
-    measure one of the earlier frames, this test needs another such pick: it tests the third move, not those
-    refusals.)"""
-    scene = campaign_scene_of(7, 4)
+    """Campaign pick 597 of seed 7: a loaded pallet 215 mm above the forks, refused at the start and after one viewing
+    move ("a second line runs beside the loaded edges"), and after a second ("the load's edges and face give it only
+    to ..."), is measured after a third move (``ControllerConfig.views`` 3 since session 45) and picked. Each move
+    raises the forks by at least 100 mm (``look_again_lift_mm``, or level with the rough pose where that is at least
+    ``view_min_lift_mm`` higher). (Pick 57 showed it until session 48's renderer change, pick 4 until session 50's
+    vague load faces, after which their first frames measure; should the vision one day measure one of the earlier
+    frames, this test needs another such pick: it tests the third move, not those refusals.)"""
+    scene = campaign_scene_of(7, 597)
     start, result, summary, viewing = viewed_pick(scene)
     assert result.ok, result.reason
     assert len(result.views) == 3 and summary["viewing_moves"] == 3 and not summary["collision"]
-    assert viewing[-1]["actual"]["lift"] - start["lift"] == pytest.approx(0.3, abs=0.002)
+    assert viewing[-1]["actual"]["lift"] - start["lift"] >= 0.3 - 0.002
     assert all(row["actual"]["lift"] >= start["lift"] - 0.002 for row in viewing)  # never down
     assert all(abs(row["actual"]["reach"] - start["reach"]) < 1e-4 for row in viewing)
 
