@@ -523,8 +523,8 @@ def test_regression_campaign_picks_of_seed_7_a_deck_clipped_in_one_channel_gives
 # Found by `agf simulate --random 1000 --seed 7` on that code, picks 209, 227, 530, 694, 700, 742 and 952 joined (see
 # docs/campaigns.md, session 48).
 OPEN_CAMPAIGN_WRONG_ACCEPTS = (
-    55, 82, 122, 209, 227, 324, 336, 413, 435, 480, 530, 554, 580, 617, 632, 660, 674, 694, 700, 723, 742, 764, 791,
-    890, 952,
+    55, 82, 122, 209, 227, 324, 336, 413, 435, 480, 530, 554, 580, 617, 632, 660, 674, 694, 700, 742, 764, 791, 890,
+    952,
 )
 
 
@@ -612,6 +612,14 @@ def test_regression_campaign_picks_of_seed_7_beside_clipped_light_accept_no_meas
 @pytest.mark.parametrize("index", OPEN_CAMPAIGN_WRONG_ACCEPTS)
 def test_open_campaign_wrong_accepts_of_seed_7(index):
     assert_no_measurement_outside_bounds(7, index, as_written=False)
+
+
+def test_regression_campaign_pick_723_of_seed_7_a_vague_load_face_no_longer_sends_it_to_a_third_view():
+    """Pick 723 (loaded, 375 mm above the forks) was refused at the start for the loose lines on its load's face,
+    viewed three times, and measured and confirmed 0.100 deg off in pitch (open until session 50). With such a face
+    counting as no face (pitch.py _without_vague_face) its first frame is measured 0.003 deg off and the pick inserts
+    with no viewing move, its verifying frame 0.003 deg off too: no measurement it accepts lies outside the bounds."""
+    assert_no_measurement_outside_bounds(7, 723, as_written=False)
 
 
 def test_regression_campaign_pick_480_of_seed_7_two_pitches_further_apart_than_their_sigmas_refuse_the_pick():
