@@ -130,9 +130,12 @@ def test_a_pick_on_simulated_time_takes_the_same_trajectory_as_on_wall_time(both
         t_wall, set_wall = rows(a, "aligning", "setpoint", name)
         t_sim, set_sim = rows(b, "aligning", "setpoint", name)
         assert np.allclose(np.diff(t_sim), cycle)  # exactly one SYNC per cycle of simulated time
-        # The same motion: the simulated setpoints, interpolated at the wall clock's cycle times,
-        # within a count (plus the interpolation's own error, under a count at these accelerations).
-        assert np.abs(np.interp(t_wall, t_sim, set_sim) - set_wall).max() <= 2.0 / count
+        # The same motion: the simulated setpoints, interpolated at the wall clock's cycle times, within
+        # two counts plus the linear interpolation's own error, h**2/8 times the largest acceleration
+        # (a second difference of the setpoints is acceleration times h**2). Taking that error as
+        # "under a count" failed CI by 0.1 count on a motion that accelerates harder.
+        interpolation = np.abs(np.diff(set_sim, 2)).max() / 8
+        assert np.abs(np.interp(t_wall, t_sim, set_sim) - set_wall).max() <= 2.0 / count + interpolation
         _, actual_wall = rows(a, "aligning", "actual", name)
         _, actual_sim = rows(b, "aligning", "actual", name)
         # The wall clock sends a setpoint up to a cycle after the SYNC it belongs to (more when the
