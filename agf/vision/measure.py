@@ -15,9 +15,11 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Any, NoReturn
+from functools import cached_property
+from typing import NoReturn
 
 import numpy as np
 from numpy.typing import NDArray
@@ -35,7 +37,7 @@ from agf.vision.edge_agreement import (
     face_edge_agreement,
     line_of_sight,
 )
-from agf.vision.face_model import face_model_from_pallet
+from agf.vision.face_model import FaceModel, face_model_from_pallet
 from agf.vision.grey import grey_from_bgr
 from agf.vision.pallet_pose import (
     PoseEstimate,
@@ -98,8 +100,8 @@ class MeasureConfig:
     # along the line of sight too); more than ``deck_edge_max`` after that, the two disagree: refused.
     deck_edge_research: float = 0.005
     deck_edge_max: float = 0.03
-    # When the image confirms only the face's own pose, not the deck edges' (see ``confirmed``), and the two lie
-    # further apart than twice the measurement's 5 mm bound (so one of them is outside it), the face's edges must
+    # When the image confirms only the face's own pose, not the deck edges' (see ``_Frame.confirmed``), and the two
+    # lie further apart than twice the measurement's 5 mm bound (so one of them is outside it), the face's edges must
     # agree clearly better at its pose than at the deck edges': a face seen steeply matched 15 mm high and agreed
     # 51% against the deck edges' pose 43% (3 mm high; random look 9 of paper scene unloaded-high-rear-up), where
     # deck edges on other lines put a face 1 mm from the truth 18 mm off, at 1% (look 8 of unloaded-low-rear-up; since
@@ -178,9 +180,11 @@ def measure_pallet(
 
     Without a prior the pose is first searched at pitch 0; when that measurement fails, again at
     +-half the search volume's ``pitch_max``: a pallet pitched 3-4 deg well below the camera matched
-    its level template 60-300 mm off, and the pitch measured there was refused. A refusal's
-    :class:`MeasurementError` carries the :class:`Findings` of the first attempt in ``found``, and its pose in
-    ``pallet_in_fork`` only when the image confirms that pose's face edges on average.
+    its level template 60-300 mm off, and the pitch measured there was refused. Where those searches all fail
+    with every similarity, a last one with :attr:`MeasureConfig.steep_similarity` from the first start
+    (:class:`_Attempt` is one search). A refusal's :class:`MeasurementError` carries the :class:`Findings` of
+    the first attempt in ``found``, and its pose in ``pallet_in_fork`` only when the image confirms that pose's
+    face edges on average.
 
     ``verifying``: the frame measures again a pallet a plan was made from (verifying it, or after a re-plan). Its
     face edges with no step beside them then count against the deck edges' pose too (see
@@ -188,102 +192,115 @@ def measure_pallet(
     (:func:`confirm_pallet`), which draws no new pitch.
     """
     start = time.perf_counter()
-    timing: dict[str, float] = {}
-    gray = grey_from_bgr(image)
-    colour = image if image.ndim == 3 else None  # the pitch's edges beside clipped light are read in it,
-    # and the face's edges where a channel shows them better than grey (face_edge_agreement)
-    gray_f = gray.astype(np.float32)  # the pose search's working copy, made once for all its calls
-    face = face_model_from_pallet(pallet)
-    search = narrow = config.pose  # the pose search of the current attempt; set for each similarity below
-    seen: dict[str, Any] = {}  # the first pose and evidence, for a refusal's Findings
+    frame = _Frame.of(image, camera, camera_in_fork, pallet, volume, forks, verifying, config)
+    starts = [prior.euler[1]] if prior is not None else [0.0, -volume.pitch_max / 2, volume.pitch_max / 2]
+    attempts = [(similarity, assumed, False) for similarity in config.similarities for assumed in starts]
+    searches = list(config.similarities)
+    if config.steep_similarity is not None:
+        attempts.append((config.steep_similarity, starts[0], True))
+        searches.append(f"{config.steep_similarity} a level finer where the face is thin")
+    failures: list[MeasurementError] = []
+    for similarity, assumed, steep in attempts:
+        search = dataclasses.replace(config.pose, similarity=similarity, finer_where_thin=steep)
+        try:
+            pose, chosen, evidence, agreement = _Attempt(frame, search, prior).measured(assumed)
+            break
+        except MeasurementError as exc:
+            failures.append(exc)
+    else:
+        raise frame.refusal(failures, searches)
+    frame.timing["total"] = (time.perf_counter() - start) * 1e3
+    measurement = PalletMeasurement(
+        pallet_in_camera=pose.pallet_in_camera,
+        pallet_in_fork=pose.pallet_in_fork,
+        loaded=chosen.hypothesis == "loaded",
+        sigma_z=max(pose.sigma[2], config.sigma_z_floor),
+        sigma_pitch=max(chosen.sigma, config.sigma_pitch_floor),
+        scores={name: e.ratio for name, e in evidence.items()}
+        | {"pose": pose.score, "margin": pose.margin, "edges": agreement.score},
+        timing_ms=frame.timing,
+    )
+    return MeasureDetail(measurement, pose, evidence)
 
-    def pose_at(near: Transform | None, pitch: float, search: PoseSearchConfig) -> PoseEstimate:
+
+@dataclass
+class _Frame:
+    """One frame under measurement (:func:`measure_pallet`): the image in the forms its steps read, what it shows,
+    the first pose and edge evidence found (a refusal's :class:`Findings`) and the milliseconds each step took."""
+
+    image: NDArray
+    colour: NDArray | None  # the pitch's edges beside clipped light are read in it, and the face's edges where a
+    # channel shows them better than grey (face_edge_agreement)
+    gray: NDArray
+    gray_f: NDArray[np.float32]  # the pose search's working copy, made once for all its calls
+    camera: CameraModel
+    camera_in_fork: Transform
+    pallet: PalletType
+    face: FaceModel
+    volume: SearchVolume
+    forks: ForkGeometry | None
+    verifying: bool
+    config: MeasureConfig
+    timing: dict[str, float] = field(default_factory=dict)
+    first_pose: PoseEstimate | None = None
+    first_evidence: dict[str, PitchEvidence] | None = None
+
+    @classmethod
+    def of(
+        cls, image: NDArray, camera: CameraModel, camera_in_fork: Transform, pallet: PalletType, volume: SearchVolume,
+        forks: ForkGeometry | None, verifying: bool, config: MeasureConfig,
+    ) -> _Frame:
+        gray = grey_from_bgr(image)
+        colour = image if image.ndim == 3 else None
+        return cls(image, colour, gray, gray.astype(np.float32), camera, camera_in_fork, pallet,
+                   face_model_from_pallet(pallet), volume, forks, verifying, config)
+
+    @contextmanager
+    def timed(self, step: str) -> Iterator[None]:
+        """Add the milliseconds the block takes to ``timing[step]``."""
         t = time.perf_counter()
-        estimate = estimate_pallet_pose(
-            gray_f, camera, camera_in_fork, face, volume, prior=near, pitch=pitch, forks=forks, config=search,
-            check=False,
-        )
-        timing["pose"] = timing.get("pose", 0.0) + (time.perf_counter() - t) * 1e3
-        return along_sight(estimate)
+        try:
+            yield
+        finally:
+            self.timing[step] = self.timing.get(step, 0.0) + (time.perf_counter() - t) * 1e3
 
-    def by_depth(pose: PoseEstimate) -> PoseEstimate:
+    def agreements(self, poses: Sequence[Transform]) -> list[EdgeAgreement]:
+        """How well the image's edges agree with the face's at each of ``poses`` (:func:`face_edge_agreement`)."""
+        return face_edge_agreement(self.image, self.camera, self.camera_in_fork, list(poses), self.face, self.forks,
+                                   self.config.edges)
+
+    def edges(self, hypothesis: str, pallet_in_fork: Transform, config: PitchConfig | None = None) -> PitchEvidence:
+        """The ``"loaded"`` or ``"unloaded"`` hypothesis' edges searched with the pallet at ``pallet_in_fork``."""
+        edges_of = unloaded_evidence if hypothesis == "unloaded" else loaded_evidence
+        return edges_of(self.gray, self.camera, self.camera_in_fork, self.pallet, pallet_in_fork,
+                        config or self.config.pitch, colour=self.colour)
+
+    def by_depth(self, pose: PoseEstimate) -> PoseEstimate:
         """The estimate or one of its other depths (:attr:`PoseEstimate.depths`), whichever's face edges agree
         best, by :attr:`MeasureConfig.depth_lead` over the estimate's own."""
         if not pose.depths:
             return pose
-        t = time.perf_counter()
         options = [pose, *pose.depths]
-        agreed = face_edge_agreement(image, camera, camera_in_fork, [o.pallet_in_fork for o in options], face, forks,
-                                     config.edges)
-        timing["edges"] = timing.get("edges", 0.0) + (time.perf_counter() - t) * 1e3
+        with self.timed("edges"):
+            agreed = self.agreements([o.pallet_in_fork for o in options])
         best = max(range(len(options)), key=lambda k: agreed[k].score)
-        return options[best] if agreed[best].score - agreed[0].score >= config.depth_lead else pose
+        return options[best] if agreed[best].score - agreed[0].score >= self.config.depth_lead else pose
 
-    def along_sight(pose: PoseEstimate) -> PoseEstimate:
-        """The estimate, or its fit again from along the line of sight where the face's edges agree better there
-        (:attr:`MeasureConfig.sight_shifts`), with the estimate's lead over the rivals less what it scores below it."""
-        if not config.sight_shifts:
-            return pose
-        t = time.perf_counter()
-        try:
-            at = pose.pallet_in_fork
-            sight = line_of_sight(at, camera_in_fork, face)
-            moved = [Transform(at.rotation, at.translation + d * sight) for d in config.sight_shifts]
-            own, *shifted = face_edge_agreement(image, camera, camera_in_fork, [at, *moved], face, forks, config.edges)
-            best = int(np.argmax([a.score for a in shifted]))
-            if shifted[best].score - own.score < config.depth_lead / 2:
-                return pose
-            try:
-                again = refine_pallet_pose(gray_f, camera, camera_in_fork, face, moved[best], forks=forks,
-                                           config=search)
-            except MeasurementError:
-                return pose
-            [agreed] = face_edge_agreement(image, camera, camera_in_fork, [again.pallet_in_fork], face, forks,
-                                           config.edges)
-            if agreed.score - own.score < config.depth_lead:
-                return pose
-            lead = pose.margin - max(pose.score - again.score, 0.0)
-            return dataclasses.replace(again, margin=lead, depths=pose.depths)
-        finally:
-            timing["edges"] = timing.get("edges", 0.0) + (time.perf_counter() - t) * 1e3
-
-    def pose_again(pose: PoseEstimate, pitch: float, first: PoseEstimate) -> PoseEstimate:
-        """The pose at a new pitch: refined from the last one (11 ms; the search nearby took 22), but
-        searched nearby when the wide search was ambiguous or the refinement moved far. At the wrong
-        pitch, a steeply seen pallet matched 230 mm off along the line of sight with a margin of 0.03
-        (paper scene unloaded-high-rear-up); refined from there it moved 60 mm and stopped 170 mm off,
-        while the search found the face within 3 mm."""
-        if first.margin >= search.min_margin:
-            t = time.perf_counter()
-            try:
-                refined = refine_pallet_pose(
-                    gray_f, camera, camera_in_fork, face, pose.pallet_in_fork, pitch=pitch, forks=forks,
-                    config=search,
-                )
-            except MeasurementError:
-                refined = None
-            timing["pose"] += (time.perf_counter() - t) * 1e3
-            if refined is not None and _distance(refined.pallet_in_fork, pose.pallet_in_fork) <= config.refine_max:
-                return refined
-        return pose_at(pose.pallet_in_fork, pitch, narrow)
-
-    def pitch_at(pose: PoseEstimate, before: dict[str, PitchEvidence] | None) -> dict[str, PitchEvidence]:
+    def pitch_at(self, pose: PoseEstimate, before: dict[str, PitchEvidence] | None) -> dict[str, PitchEvidence]:
         """Both hypotheses at the first pose; after that the loaded one only when the unloaded one fails,
         as a valid unloaded hypothesis wins anyway (its loaded score is then that of the pose before)."""
-        t = time.perf_counter()
-        unloaded = unloaded_evidence(gray, camera, camera_in_fork, pallet, pose.pallet_in_fork, config.pitch,
-                                     colour=colour)
-        if before is None or not unloaded.valid:
-            loaded = loaded_evidence(gray, camera, camera_in_fork, pallet, pose.pallet_in_fork, config.pitch,
-                                     colour=colour)
-        else:
-            loaded = before["loaded"]
-        timing["pitch"] = timing.get("pitch", 0.0) + (time.perf_counter() - t) * 1e3
-        seen.setdefault("evidence", {"loaded": loaded, "unloaded": unloaded})
+        with self.timed("pitch"):
+            unloaded = self.edges("unloaded", pose.pallet_in_fork)
+            if before is None or not unloaded.valid:
+                loaded = self.edges("loaded", pose.pallet_in_fork)
+            else:
+                loaded = before["loaded"]
+        if self.first_evidence is None:
+            self.first_evidence = {"loaded": loaded, "unloaded": unloaded}
         return {"loaded": loaded, "unloaded": unloaded}
 
     def check_pitch_stable(
-        pose: PoseEstimate, chosen: PitchEvidence, searched: list[tuple[float, dict[str, PitchEvidence]]]
+        self, pose: PoseEstimate, chosen: PitchEvidence, searched: list[tuple[float, dict[str, PitchEvidence]]]
     ) -> None:
         """Refuse unless the chosen hypothesis' edges, searched from :attr:`MeasureConfig.pitch_probe` either side,
         give the same pitch again from at least one side and no other pitch from either (a pair with a rival gives
@@ -293,99 +310,41 @@ def measure_pallet(
         found fresh there) are held to the same rule where they were searched within the probe: campaign seed 7,
         pick 986 (loaded) found its load's edges 0.08 deg from the truth 0.05 deg from where it settled, beside a
         rival pairing that agreed with the face's lines 0.3 deg off, and settled on the latter."""
+        probe, tolerance = self.config.pitch_probe, self.config.pitch_probe_tolerance
         for at, found in searched:
-            if chosen.hypothesis in found and abs(at - chosen.pitch) <= config.pitch_probe:
-                check_same_pitch(chosen, found[chosen.hypothesis], f"from {math.degrees(at - chosen.pitch):+.2f} deg")
-        t = time.perf_counter()
-        edges_of = unloaded_evidence if chosen.hypothesis == "unloaded" else loaded_evidence
+            if chosen.hypothesis in found and abs(at - chosen.pitch) <= probe:
+                _check_same_pitch(chosen, found[chosen.hypothesis], tolerance,
+                                  f"from {math.degrees(at - chosen.pitch):+.2f} deg")
         yaw, _, roll = pose.pallet_in_fork.euler
         settled = False
-        for offset in (-config.pitch_probe, config.pitch_probe):
-            probe = Transform.from_euler(*pose.pallet_in_fork.translation, roll, chosen.pitch + offset, yaw)
-            again = edges_of(gray, camera, camera_in_fork, pallet, probe, config.pitch, colour=colour)
-            check_same_pitch(chosen, again, f"from {math.degrees(offset):+.1f} deg beside it")
-            settled = settled or again.valid
+        with self.timed("pitch"):
+            for offset in (-probe, probe):
+                moved = Transform.from_euler(*pose.pallet_in_fork.translation, roll, chosen.pitch + offset, yaw)
+                again = self.edges(chosen.hypothesis, moved)
+                _check_same_pitch(chosen, again, tolerance, f"from {math.degrees(offset):+.1f} deg beside it")
+                settled = settled or again.valid
         if not settled:
-            unsettled(chosen, "no pair of edges", f"from {math.degrees(config.pitch_probe):.1f} deg either side")
-        timing["pitch"] = timing.get("pitch", 0.0) + (time.perf_counter() - t) * 1e3
+            _unsettled(chosen, "no pair of edges", f"from {math.degrees(probe):.1f} deg either side")
 
-    def check_same_pitch(chosen: PitchEvidence, again: PitchEvidence, where: str) -> None:
-        """Refuse when ``again``, the chosen hypothesis' edges searched elsewhere (``where``, for the reason), gives
-        (or, ambiguous, offers) a pitch more than :attr:`MeasureConfig.pitch_probe_tolerance` from it."""
-        other = [p for p in again.offered if abs(p - chosen.pitch) > config.pitch_probe_tolerance]
-        if other:
-            unsettled(chosen, ", ".join(f"{math.degrees(p):.2f}" for p in other) + " deg", where)
-
-    def unsettled(chosen: PitchEvidence, found: str, where: str) -> NoReturn:
-        raise MeasurementError(
-            f"the {chosen.hypothesis} edges do not settle on one pitch: {math.degrees(chosen.pitch):.2f} deg "
-            f"measured, {found} when searched {where}; refusing rather than guessing"
-        )
-
-    def converged(pitch: float) -> tuple[PoseEstimate, PitchEvidence, dict[str, PitchEvidence]]:
-        first = pose = by_depth(pose_at(prior, pitch, search))
-        seen.setdefault("pose", first)
-        step = swing = 0.0
-        evidence = None
-        led = False
-        searched: list[tuple[float, dict[str, PitchEvidence]]] = []  # each search pitch, the hypotheses found there
-        for _ in range(config.iterations):
-            before, evidence = evidence, pitch_at(pose, evidence)
-            searched.append((pitch, {n: e for n, e in evidence.items() if before is None or e is not before[n]}))
-            lead = evidence["loaded"].lead
-            if not led and not evidence["unloaded"].valid and abs(lead - pitch) >= config.pitch_tolerance:
-                # The load's edges, searched around the wrong pitch, disagree with its face's lines: search
-                # the pose and the edges again at the face's pitch; the edges must then agree by themselves.
-                pitch, led, step = lead, True, 0.0
-                pose = pose_again(pose, pitch, first)
-                continue
-            chosen = _choose(evidence, config.pitch)
-            change = chosen.pitch - pitch
-            pitch, swung = next_pitch(pitch, chosen.pitch, step)
-            swing = max(swing, swung)
-            step = change
-            if abs(change) < config.pitch_tolerance:
-                check_pitch_stable(pose, chosen, searched[:-1])
-                chosen = dataclasses.replace(chosen, sigma=max(chosen.sigma, swing / 2))
-                # The narrow re-searches see no rivals; the wide first search did, at the assumed pitch.
-                pose = dataclasses.replace(pose, margin=min(pose.margin, pose.score - (first.score - first.margin)))
-                check_pose_estimate(pose, camera, face, search)
-                return pose, chosen, evidence
-            pose = pose_again(pose, pitch, first)
-        raise MeasurementError(f"pose and pitch did not agree after {config.iterations} iterations")
-
-    def check_deck_in_colour(pose: PoseEstimate) -> None:
+    def check_deck_in_colour(self, pose: PoseEstimate) -> None:
         """Refuse the load's edges where the colour gradient shows the top deck's side edges that a load hides: rack
         uprights behind an unloaded pallet on a grey bed, whose terracotta deck the grey barely told from the bed,
         gave the world's vertical 2.4 deg off (campaign seed 7, pick 35, the forks 200 mm further back)."""
-        t = time.perf_counter()
-        deck = unloaded_evidence(gray, camera, camera_in_fork, pallet, pose.pallet_in_fork,
-                                 dataclasses.replace(config.pitch, colour_edges=True), colour=colour)
-        timing["pitch"] = timing.get("pitch", 0.0) + (time.perf_counter() - t) * 1e3
-        check_deck_under_load(deck.ratio, config.pitch, " in the colour frame's gradient")
-
-    def onto_deck_edges(pose: PoseEstimate, edges: PitchEvidence) -> PoseEstimate:
-        moved = pose_from_deck_edges(edges, pallet, camera_in_fork, pose.pallet_in_fork)
-        if _distance(moved, pose.pallet_in_fork) > config.deck_edge_research:
-            # Not checked again: the face passed its checks within the window; the edges now pin y, z, yaw.
-            pose = dataclasses.replace(pose_at(moved, moved.euler[1], narrow), margin=pose.margin)
-            moved = pose_from_deck_edges(edges, pallet, camera_in_fork, pose.pallet_in_fork)
-        shift = _distance(moved, pose.pallet_in_fork)
-        if shift > config.deck_edge_max:
-            raise MeasurementError(
-                f"the front face and the top deck's edges disagree by {shift * 1e3:.0f} mm "
-                f"(at most {config.deck_edge_max * 1e3:.0f}); refusing rather than guessing"
-            )
-        return dataclasses.replace(pose, pallet_in_fork=moved, pallet_in_camera=camera_in_fork.inverse() @ moved)
+        with self.timed("pitch"):
+            deck = self.edges("unloaded", pose.pallet_in_fork,
+                              dataclasses.replace(self.config.pitch, colour_edges=True))
+        check_deck_under_load(deck.ratio, self.config.pitch, " in the colour frame's gradient")
 
     def check_fallback(
-        placed: PoseEstimate, own: PoseEstimate, agreement: EdgeAgreement, other: EdgeAgreement, edges: PitchEvidence
+        self, placed: PoseEstimate, own: PoseEstimate, agreement: EdgeAgreement, other: EdgeAgreement,
+        edges: PitchEvidence,
     ) -> None:
         """Refuse the face's own pose, confirmed where the deck edges' ``placed`` was not (its edges agreed
         ``other``), when the two are more than :attr:`MeasureConfig.face_fallback_max` apart and its face
         edges do not agree clearly better there (:attr:`MeasureConfig.face_fallback_lead`), when the deck edges
         turn it in yaw by more than :attr:`MeasureConfig.face_fallback_yaw`, or when the deck
         ``edges``, whose pitch it keeps, miss the deck's front corners at it (:func:`check_deck_corners`)."""
+        config = self.config
         apart = _distance(own.pallet_in_fork, placed.pallet_in_fork)
         turned = abs(math.remainder(own.pallet_in_fork.euler[0] - placed.pallet_in_fork.euler[0], math.tau))
         if turned > config.face_fallback_yaw:
@@ -401,89 +360,206 @@ def measure_pallet(
                 f"face's, {other.score:.0%} at the deck edges' (need a lead of "
                 f"{config.face_fallback_lead:.0%}); refusing rather than guessing"
             )
-        check_deck_corners(deck_corner_misses(edges, pallet, camera_in_fork, own.pallet_in_fork),
+        check_deck_corners(deck_corner_misses(edges, self.pallet, self.camera_in_fork, own.pallet_in_fork),
                            config.pitch.anchor_tolerance)
 
     def confirmed(
-        poses: list[PoseEstimate], edges: PitchEvidence, placed: int = 0
+        self, poses: list[PoseEstimate], edges: PitchEvidence, placed: int = 0
     ) -> tuple[PoseEstimate, EdgeAgreement]:
         """The first pose whose face edges the image confirms (:func:`check_face_edges`), with its
         agreement; else the first one's refusal. The deck edges' pose comes first: seen steeply, the face
         match settled 7-29 mm off in z. The face's own pose is the fallback: through a lens pitched 25 deg,
         the deck edges' pose sat 6.5 mm high and not one pocket top edge agreed with it (foreign render
-        real-lens-unloaded), while the face's own was within 0.5 mm (see ``check_fallback``, which also
+        real-lens-unloaded), while the face's own was within 0.5 mm (see :meth:`check_fallback`, which also
         checks the pitch's ``edges`` against it). The first ``placed`` poses are the deck edges': their face
         edges are judged where the image shows a step (:attr:`MeasureConfig.placed_blank_disagrees`)."""
-        t = time.perf_counter()
         refusals = []
-        tolerant = dataclasses.replace(config.edges, blank_disagrees=config.placed_blank_disagrees or verifying)
-        try:
+        strict = self.config.edges
+        tolerant = dataclasses.replace(strict, blank_disagrees=self.config.placed_blank_disagrees or self.verifying)
+        with self.timed("edges"):
             for k, candidate in enumerate(poses):
                 try:
-                    agreement = check_face_edges(image, camera, camera_in_fork, candidate.pallet_in_fork, face, forks,
-                                                 tolerant if k < placed else config.edges)
+                    agreement = check_face_edges(self.image, self.camera, self.camera_in_fork, candidate.pallet_in_fork,
+                                                 self.face, self.forks, tolerant if k < placed else strict)
                 except MeasurementError as exc:
                     refusals.append(exc)
                     continue
                 if refusals:
-                    check_fallback(poses[0], candidate, agreement, refusals[0].found, edges)
+                    self.check_fallback(poses[0], candidate, agreement, refusals[0].found, edges)
                 return candidate, agreement
             raise refusals[0]
-        finally:
-            timing["edges"] = timing.get("edges", 0.0) + (time.perf_counter() - t) * 1e3
 
-    def rough(pallet_in_fork: Transform | None) -> Transform | None:
+    def rough(self, pallet_in_fork: Transform | None) -> Transform | None:
         """A refused search's pose when the image confirms its face edges on average (those the forks do not hide),
         else None: a view from level with it may then measure. On the refused first frames of 100 campaign picks,
         rough poses within 4 mm of the truth agreed 12-95 % (most over 50 %), those 39-650 mm off 2-40 %; moving
         the forks by one of those is a move on a guess."""
         if pallet_in_fork is None:
             return None
-        [agreed] = face_edge_agreement(image, camera, camera_in_fork, [pallet_in_fork], face, forks, config.edges)
-        return pallet_in_fork if agreed.score >= config.edges.min_score else None
+        [agreed] = self.agreements([pallet_in_fork])
+        return pallet_in_fork if agreed.score >= self.config.edges.min_score else None
 
-    starts = [prior.euler[1]] if prior is not None else [0.0, -volume.pitch_max / 2, volume.pitch_max / 2]
-    attempts = [(similarity, assumed, False) for similarity in config.similarities for assumed in starts]
-    searches = list(config.similarities)
-    if config.steep_similarity is not None:
-        attempts.append((config.steep_similarity, starts[0], True))
-        searches.append(f"{config.steep_similarity} a level finer where the face is thin")
-    failures: list[MeasurementError] = []
-    for similarity, assumed, steep in attempts:
-        search = dataclasses.replace(config.pose, similarity=similarity, finer_where_thin=steep)
-        # Searched again near a pose of this frame: its rivals and other depths were judged in the wide search.
-        narrow = near_prior(search, 0.04)
-        try:
-            pose, chosen, evidence = converged(assumed)
-            # before the face-edge check, which costs 50 ms and cannot change the pitch's sigma
-            check_pitch_sigma(chosen.hypothesis, chosen.sigma, config.max_sigma_pitch)
-            if chosen.hypothesis == "loaded" and colour is not None:
-                check_deck_in_colour(pose)
-            placed = [onto_deck_edges(pose, chosen)] if chosen.hypothesis == "unloaded" and chosen.placed else []
-            pose, agreement = confirmed(placed + [pose], chosen, len(placed))
-            if prior is None:
-                check_in_volume(pose.pallet_in_fork, volume)
-            break
-        except MeasurementError as exc:
-            failures.append(exc)
-    else:
-        found = Findings(seen.get("pose"), seen.get("evidence"))
+    def refusal(self, failures: list[MeasurementError], searches: Sequence[str]) -> MeasurementError:
+        """The one error for every search of this frame failing (:func:`_refusal`), with what the first found."""
+        found = Findings(self.first_pose, self.first_evidence)
         hidden = next((f for f in failures if isinstance(f, PalletHiddenError)), None)
-        first = rough(found.pose.pallet_in_fork) if found.pose is not None else None
-        raise _refusal(failures, volume, searches, found, first,
-                       rough(hidden.pallet_in_fork) if hidden is not None else None)
-    timing["total"] = (time.perf_counter() - start) * 1e3
-    measurement = PalletMeasurement(
-        pallet_in_camera=pose.pallet_in_camera,
-        pallet_in_fork=pose.pallet_in_fork,
-        loaded=chosen.hypothesis == "loaded",
-        sigma_z=max(pose.sigma[2], config.sigma_z_floor),
-        sigma_pitch=max(chosen.sigma, config.sigma_pitch_floor),
-        scores={name: e.ratio for name, e in evidence.items()}
-        | {"pose": pose.score, "margin": pose.margin, "edges": agreement.score},
-        timing_ms=timing,
+        first = self.rough(found.pose.pallet_in_fork) if found.pose is not None else None
+        return _refusal(failures, self.volume, searches, found, first,
+                        self.rough(hidden.pallet_in_fork) if hidden is not None else None)
+
+
+@dataclass(frozen=True)
+class _Attempt:
+    """One search of a frame (:func:`measure_pallet`): the pose searched with one similarity from an assumed pitch,
+    pose and pitch iterated until they agree, then checked. ``narrow`` searches again near a pose of this frame:
+    its rivals and other depths were judged in the wide search (``search``)."""
+
+    frame: _Frame
+    search: PoseSearchConfig
+    prior: Transform | None
+
+    @cached_property
+    def narrow(self) -> PoseSearchConfig:
+        return near_prior(self.search, 0.04)
+
+    def measured(self, assumed: float) -> tuple[PoseEstimate, PitchEvidence, dict[str, PitchEvidence], EdgeAgreement]:
+        """The pose, the chosen pitch evidence, both hypotheses' evidence and the face edges' agreement of a search
+        from pitch ``assumed`` (rad), or :class:`MeasurementError`."""
+        frame, config = self.frame, self.frame.config
+        pose, chosen, evidence = self.converged(assumed)
+        # before the face-edge check, which costs 50 ms and cannot change the pitch's sigma
+        check_pitch_sigma(chosen.hypothesis, chosen.sigma, config.max_sigma_pitch)
+        if chosen.hypothesis == "loaded" and frame.colour is not None:
+            frame.check_deck_in_colour(pose)
+        placed = [self.onto_deck_edges(pose, chosen)] if chosen.hypothesis == "unloaded" and chosen.placed else []
+        pose, agreement = frame.confirmed(placed + [pose], chosen, len(placed))
+        if self.prior is None:
+            check_in_volume(pose.pallet_in_fork, frame.volume)
+        return pose, chosen, evidence, agreement
+
+    def pose_at(self, near: Transform | None, pitch: float, search: PoseSearchConfig) -> PoseEstimate:
+        frame = self.frame
+        with frame.timed("pose"):
+            estimate = estimate_pallet_pose(
+                frame.gray_f, frame.camera, frame.camera_in_fork, frame.face, frame.volume, prior=near, pitch=pitch,
+                forks=frame.forks, config=search, check=False,
+            )
+        return self.along_sight(estimate)
+
+    def along_sight(self, pose: PoseEstimate) -> PoseEstimate:
+        """The estimate, or its fit again from along the line of sight where the face's edges agree better there
+        (:attr:`MeasureConfig.sight_shifts`), with the estimate's lead over the rivals less what it scores below it."""
+        frame, config = self.frame, self.frame.config
+        if not config.sight_shifts:
+            return pose
+        with frame.timed("edges"):
+            at = pose.pallet_in_fork
+            sight = line_of_sight(at, frame.camera_in_fork, frame.face)
+            moved = [Transform(at.rotation, at.translation + d * sight) for d in config.sight_shifts]
+            own, *shifted = frame.agreements([at, *moved])
+            best = int(np.argmax([a.score for a in shifted]))
+            if shifted[best].score - own.score < config.depth_lead / 2:
+                return pose
+            try:
+                again = refine_pallet_pose(frame.gray_f, frame.camera, frame.camera_in_fork, frame.face, moved[best],
+                                           forks=frame.forks, config=self.search)
+            except MeasurementError:
+                return pose
+            [agreed] = frame.agreements([again.pallet_in_fork])
+            if agreed.score - own.score < config.depth_lead:
+                return pose
+            lead = pose.margin - max(pose.score - again.score, 0.0)
+            return dataclasses.replace(again, margin=lead, depths=pose.depths)
+
+    def pose_again(self, pose: PoseEstimate, pitch: float, first: PoseEstimate) -> PoseEstimate:
+        """The pose at a new pitch: refined from the last one (11 ms; the search nearby took 22), but
+        searched nearby when the wide search was ambiguous or the refinement moved far. At the wrong
+        pitch, a steeply seen pallet matched 230 mm off along the line of sight with a margin of 0.03
+        (paper scene unloaded-high-rear-up); refined from there it moved 60 mm and stopped 170 mm off,
+        while the search found the face within 3 mm."""
+        frame, config = self.frame, self.frame.config
+        if first.margin >= self.search.min_margin:
+            with frame.timed("pose"):
+                try:
+                    refined = refine_pallet_pose(
+                        frame.gray_f, frame.camera, frame.camera_in_fork, frame.face, pose.pallet_in_fork, pitch=pitch,
+                        forks=frame.forks, config=self.search,
+                    )
+                except MeasurementError:
+                    refined = None
+            if refined is not None and _distance(refined.pallet_in_fork, pose.pallet_in_fork) <= config.refine_max:
+                return refined
+        return self.pose_at(pose.pallet_in_fork, pitch, self.narrow)
+
+    def converged(self, pitch: float) -> tuple[PoseEstimate, PitchEvidence, dict[str, PitchEvidence]]:
+        """Pose and pitch iterated from ``pitch`` (rad) until the pitch the edges give moves less than
+        :attr:`MeasureConfig.pitch_tolerance`, then checked for a pitch that does not depend on where its search
+        began (:meth:`_Frame.check_pitch_stable`) and a pose the image supports (:func:`check_pose_estimate`)."""
+        frame, config = self.frame, self.frame.config
+        first = pose = frame.by_depth(self.pose_at(self.prior, pitch, self.search))
+        if frame.first_pose is None:
+            frame.first_pose = first
+        step = swing = 0.0
+        evidence = None
+        led = False
+        searched: list[tuple[float, dict[str, PitchEvidence]]] = []  # each search pitch, the hypotheses found there
+        for _ in range(config.iterations):
+            before, evidence = evidence, frame.pitch_at(pose, evidence)
+            searched.append((pitch, {n: e for n, e in evidence.items() if before is None or e is not before[n]}))
+            lead = evidence["loaded"].lead
+            if not led and not evidence["unloaded"].valid and abs(lead - pitch) >= config.pitch_tolerance:
+                # The load's edges, searched around the wrong pitch, disagree with its face's lines: search
+                # the pose and the edges again at the face's pitch; the edges must then agree by themselves.
+                pitch, led, step = lead, True, 0.0
+                pose = self.pose_again(pose, pitch, first)
+                continue
+            chosen = _choose(evidence, config.pitch)
+            change = chosen.pitch - pitch
+            pitch, swung = next_pitch(pitch, chosen.pitch, step)
+            swing = max(swing, swung)
+            step = change
+            if abs(change) < config.pitch_tolerance:
+                frame.check_pitch_stable(pose, chosen, searched[:-1])
+                chosen = dataclasses.replace(chosen, sigma=max(chosen.sigma, swing / 2))
+                # The narrow re-searches see no rivals; the wide first search did, at the assumed pitch.
+                pose = dataclasses.replace(pose, margin=min(pose.margin, pose.score - (first.score - first.margin)))
+                check_pose_estimate(pose, frame.camera, frame.face, self.search)
+                return pose, chosen, evidence
+            pose = self.pose_again(pose, pitch, first)
+        raise MeasurementError(f"pose and pitch did not agree after {config.iterations} iterations")
+
+    def onto_deck_edges(self, pose: PoseEstimate, edges: PitchEvidence) -> PoseEstimate:
+        """The pose with y, z, yaw and pitch from the deck ``edges`` (:func:`pose_from_deck_edges`), x from the face:
+        searched again from there when they moved it more than :attr:`MeasureConfig.deck_edge_research`, refused
+        when they still move it more than :attr:`MeasureConfig.deck_edge_max`."""
+        frame, config = self.frame, self.frame.config
+        moved = pose_from_deck_edges(edges, frame.pallet, frame.camera_in_fork, pose.pallet_in_fork)
+        if _distance(moved, pose.pallet_in_fork) > config.deck_edge_research:
+            # Not checked again: the face passed its checks within the window; the edges now pin y, z, yaw.
+            pose = dataclasses.replace(self.pose_at(moved, moved.euler[1], self.narrow), margin=pose.margin)
+            moved = pose_from_deck_edges(edges, frame.pallet, frame.camera_in_fork, pose.pallet_in_fork)
+        shift = _distance(moved, pose.pallet_in_fork)
+        if shift > config.deck_edge_max:
+            raise MeasurementError(
+                f"the front face and the top deck's edges disagree by {shift * 1e3:.0f} mm "
+                f"(at most {config.deck_edge_max * 1e3:.0f}); refusing rather than guessing"
+            )
+        return dataclasses.replace(pose, pallet_in_fork=moved, pallet_in_camera=frame.camera_in_fork.inverse() @ moved)
+
+
+def _check_same_pitch(chosen: PitchEvidence, again: PitchEvidence, tolerance: float, where: str) -> None:
+    """Refuse when ``again``, the chosen hypothesis' edges searched elsewhere (``where``, for the reason), gives
+    (or, ambiguous, offers) a pitch more than ``tolerance`` (:attr:`MeasureConfig.pitch_probe_tolerance`) from it."""
+    other = [p for p in again.offered if abs(p - chosen.pitch) > tolerance]
+    if other:
+        _unsettled(chosen, ", ".join(f"{math.degrees(p):.2f}" for p in other) + " deg", where)
+
+
+def _unsettled(chosen: PitchEvidence, found: str, where: str) -> NoReturn:
+    raise MeasurementError(
+        f"the {chosen.hypothesis} edges do not settle on one pitch: {math.degrees(chosen.pitch):.2f} deg "
+        f"measured, {found} when searched {where}; refusing rather than guessing"
     )
-    return MeasureDetail(measurement, pose, evidence)
 
 
 def confirm_pallet(
@@ -622,11 +698,12 @@ def check_pitch_sigma(hypothesis: str, sigma: float, limit: float) -> None:
 
 
 def check_deck_corners(misses: NDArray[np.float64], limit: float) -> None:
-    """Refuse the deck edges' pitch where the face's own pose was confirmed and theirs was not (``check_fallback``
-    in :func:`measure_pallet`) unless both edges pass within ``limit`` panorama pixels of the deck's front corners at
-    the face's pose (``misses``, :func:`~agf.vision.pitch.deck_corner_misses`). Campaign seed 7, pick 386: a shadow's
-    edge, lit deck on one side and shaded deck on the other, ran from a far corner of an unloaded pallet to 14 px
-    inside the near one and paired with the other edge 1.58 deg off; the face's pose was right within 0.3 mm.
+    """Refuse the deck edges' pitch where the face's own pose was confirmed and theirs was not
+    (``_Frame.check_fallback``, :func:`measure_pallet`) unless both edges pass within ``limit`` panorama pixels of
+    the deck's front corners at the face's pose (``misses``, :func:`~agf.vision.pitch.deck_corner_misses`). Campaign
+    seed 7, pick 386: a shadow's edge, lit deck on one side and shaded deck on the other, ran from a far corner of an
+    unloaded pallet to 14 px inside the near one and paired with the other edge 1.58 deg off; the face's pose was
+    right within 0.3 mm.
 
     Raises
     ------
