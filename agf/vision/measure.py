@@ -403,9 +403,9 @@ class _Frame:
         """The one error for every search of this frame failing (:func:`_refusal`), with what the first found."""
         found = Findings(self.first_pose, self.first_evidence)
         hidden = next((f for f in failures if isinstance(f, PalletHiddenError)), None)
-        first = self.rough(found.pose.pallet_in_fork) if found.pose is not None else None
+        first = self.rough(found.pose.pallet_in_fork if found.pose is not None else None)
         return _refusal(failures, self.volume, searches, found, first,
-                        self.rough(hidden.pallet_in_fork) if hidden is not None else None)
+                        self.rough(hidden.pallet_in_fork if hidden is not None else None))
 
 
 @dataclass(frozen=True)
@@ -603,14 +603,12 @@ def confirm_pallet(
         The last similarity's reason when no face near ``expected`` passes the checks.
     """
     start = time.perf_counter()
-    face = face_model_from_pallet(pallet)
-    gray = grey_from_bgr(image)
-    gray_f = gray.astype(np.float32)
+    frame = _Frame.of(image, camera, camera_in_fork, pallet, volume, forks, False, config)
     failure: MeasurementError | None = None
     for similarity in config.similarities:
         search = near_prior(dataclasses.replace(config.pose, similarity=similarity), config.confirm_window)
         try:
-            pose = estimate_pallet_pose(gray_f, camera, camera_in_fork, face, volume, prior=expected,
+            pose = estimate_pallet_pose(frame.gray_f, camera, camera_in_fork, frame.face, volume, prior=expected,
                                         pitch=expected.euler[1], forks=forks, config=search)
             moved = _distance(pose.pallet_in_fork, expected)
             if moved > config.confirm_window:
@@ -618,11 +616,11 @@ def confirm_pallet(
                     f"the front face was found {moved * 1e3:.0f} mm from where the plan expects it (at most "
                     f"{config.confirm_window * 1e3:.0f}); refusing rather than guessing"
                 )
-            agreement = check_face_edges(image, camera, camera_in_fork, pose.pallet_in_fork, face, forks,
+            agreement = check_face_edges(image, camera, camera_in_fork, pose.pallet_in_fork, frame.face, forks,
                                          dataclasses.replace(config.edges, blank_disagrees=False))
             check_in_volume(pose.pallet_in_fork, volume)
             if not loaded:
-                check_kept_pitch(gray, image, camera, camera_in_fork, pallet, pose.pallet_in_fork, config)
+                check_kept_pitch(frame.gray, image, camera, camera_in_fork, pallet, pose.pallet_in_fork, config)
             break
         except MeasurementError as exc:
             failure = exc
