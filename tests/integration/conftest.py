@@ -8,6 +8,7 @@ from pathlib import Path
 
 import cv2
 import pytest
+from filelock import FileLock
 
 from agf.paths import repo_path
 
@@ -25,11 +26,16 @@ def _render(job: tuple[str, str]) -> str:
     return out
 
 
-def render_all(scene_paths: list[Path], out_dir: Path) -> dict[str, Path]:
-    jobs = [(str(p), str(out_dir / f"{p.parent.name}-{p.stem}.png")) for p in scene_paths]
-    with get_context("fork").Pool(2) as pool:
-        pool.map(_render, jobs)
+def rendered_paths(scene_paths: list[Path], out_dir: Path) -> dict[str, Path]:
+    """``{"<folder>/<name>": PNG in out_dir}`` for each scene file."""
     return {f"{p.parent.name}/{p.stem}": out_dir / f"{p.parent.name}-{p.stem}.png" for p in scene_paths}
+
+
+def render_all(scene_paths: list[Path], out_dir: Path) -> dict[str, Path]:
+    paths = rendered_paths(scene_paths, out_dir)
+    with get_context("fork").Pool(2) as pool:
+        pool.map(_render, [(str(s), str(png)) for s, png in zip(scene_paths, paths.values(), strict=True)])
+    return paths
 
 
 # Looks of campaign seed 7 drawn before session 39, whose truck bed or dock held the tines' tips at the start
@@ -66,6 +72,17 @@ def scene_files() -> list[Path]:
 
 
 @pytest.fixture(scope="session")
-def rendered(tmp_path_factory) -> dict[str, Path]:
-    """``{"paper/<name>" | "robust/<name>": rendered PNG}`` for every scene file."""
-    return render_all(scene_files(), tmp_path_factory.mktemp("renders"))
+def rendered(tmp_path_factory, worker_id: str) -> dict[str, Path]:
+    """``{"paper/<name>" | "robust/<name>": rendered PNG}`` for every scene file, rendered once per run: under
+    pytest-xdist the first worker that asks renders them (on both cores) into the run's temporary folder, which the
+    workers share, and the others wait for it."""
+    if worker_id == "master":
+        return render_all(scene_files(), tmp_path_factory.mktemp("renders"))
+    shared = tmp_path_factory.getbasetemp().parent  # this run's folder; each worker's basetemp lies in it
+    out, done = shared / "renders", shared / "renders.done"
+    with FileLock(str(shared / "renders.lock")):
+        if not done.exists():
+            out.mkdir(exist_ok=True)
+            render_all(scene_files(), out)
+            done.touch()
+    return rendered_paths(scene_files(), out)

@@ -20,6 +20,9 @@ from agf.vision.calibration import WITHOUT_SHIFT, Panel, calibrate, fit_panel
 from drivers.sim.render import render
 from tests.integration.conftest import SCENES
 
+# one pytest-xdist worker runs them all: its module fixture renders the panel images once for all its tests
+pytestmark = pytest.mark.xdist_group("test_calibration")
+
 CONFIG = load_config(DEFAULT_CONFIG)
 NOMINAL = load_calibration(CONFIG.vision.calibration)
 BASE = load_scene(SCENES / "panel.yaml")

@@ -112,6 +112,7 @@ def both_clocks():
     return wall, simulated
 
 
+@pytest.mark.xdist_group("both_clocks")  # one worker makes the two picks for both
 def test_a_pick_on_simulated_time_takes_the_same_trajectory_as_on_wall_time(both_clocks):
     (wall, counts, wall_rest), (simulated, _, sim_rest) = both_clocks
     a, b = wall["result"], simulated["result"]
@@ -145,6 +146,7 @@ def test_a_pick_on_simulated_time_takes_the_same_trajectory_as_on_wall_time(both
         assert lag <= 2.0 / count + 2 * cycle * speed, (name, lag)
 
 
+@pytest.mark.xdist_group("both_clocks")  # one worker makes the two picks for both
 def test_on_simulated_time_the_vision_takes_no_motion_time(both_clocks):
     (wall, *_), (simulated, *_) = both_clocks
     b = simulated["result"]

@@ -29,6 +29,9 @@ from drivers.sim.drive import SimDrive
 from drivers.sim.fault_bench import SCENARIOS, FaultPick, Reaction, pick_frames, replay_folder, run_scenario
 from tests.integration.test_drives import LIMITS, SCALE, wait_until
 
+# one pytest-xdist worker runs them all: its session fixture renders the pick's frames into pytest's cache once
+pytestmark = pytest.mark.xdist_group("test_faults")
+
 
 @pytest.fixture(scope="session")
 def rendered(request) -> dict[str, Path]:

@@ -41,6 +41,9 @@ from agf.fleet.agent import FleetAgent  # noqa: E402
 from drivers.mqtt_fleet import MqttFleetLink  # noqa: E402
 from drivers.sim.fleet_truck import SimulatedFleetTruck  # noqa: E402
 
+# one pytest-xdist worker runs them all: its tests share one broker
+pytestmark = pytest.mark.xdist_group("test_fleet")
+
 CONFIG = load_config(DEFAULT_CONFIG)
 VALIDATORS = {
     topic: jsonschema.Draft202012Validator(json.loads((SCHEMAS / f"{topic}.schema").read_text()))

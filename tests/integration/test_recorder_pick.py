@@ -20,7 +20,8 @@ from agf.recorder import SCHEMAS, TOPICS, PickLog, read_log
 from agf.replay import replay_log
 from tests.config_copy import config_copy, default_config
 
-pytestmark = pytest.mark.slow
+# one pytest-xdist worker runs them all: they share one killed pick
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("test_recorder_pick")]
 
 
 def run_until_moving(config: Path) -> tuple[subprocess.Popen, list[str]]:

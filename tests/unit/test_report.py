@@ -17,6 +17,9 @@ from agf.report import RESULTS_FILE, read_results, write_report
 from drivers.sim.campaign import PoolBackend, ResultsFile, run_campaign
 from tests.unit.campaign_picks import light_pick
 
+# one pytest-xdist worker runs them all: its tests share one 40-pick campaign
+pytestmark = pytest.mark.xdist_group("test_report")
+
 RUNS, SEED = 40, 11
 
 
