@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import dataclasses
+import time
 from multiprocessing import get_context
 from pathlib import Path
 
 import cv2
 import pytest
-from filelock import FileLock
 
 from agf.paths import repo_path
 
@@ -71,18 +71,37 @@ def scene_files() -> list[Path]:
     return files
 
 
+RENDER_WAIT_S = 1800  # a scene takes 5-30 s on one core; a claim left this long was abandoned (its worker died)
+
+
+def _claimed(png: Path) -> bool:
+    """Whether this worker is the first to claim rendering ``png`` (created with O_EXCL: one worker wins)."""
+    try:
+        png.with_suffix(".claimed").touch(exist_ok=False)
+    except FileExistsError:
+        return False
+    return True
+
+
 @pytest.fixture(scope="session")
 def rendered(tmp_path_factory, worker_id: str) -> dict[str, Path]:
-    """``{"paper/<name>" | "robust/<name>": rendered PNG}`` for every scene file, rendered once per run: under
-    pytest-xdist the first worker that asks renders them (on both cores) into the run's temporary folder, which the
-    workers share, and the others wait for it."""
+    """``{"paper/<name>" | "robust/<name>": rendered PNG}`` for every scene file, rendered once per run. Under
+    pytest-xdist the workers share the run's temporary folder and render the scenes between them: each worker that
+    asks claims the scenes nobody has claimed yet, one at a time, and then waits for the others' claims, so the
+    renders use every worker that needs them and none waits idle for another to render them all."""
     if worker_id == "master":
         return render_all(scene_files(), tmp_path_factory.mktemp("renders"))
-    shared = tmp_path_factory.getbasetemp().parent  # this run's folder; each worker's basetemp lies in it
-    out, done = shared / "renders", shared / "renders.done"
-    with FileLock(str(shared / "renders.lock")):
-        if not done.exists():
-            out.mkdir(exist_ok=True)
-            render_all(scene_files(), out)
-            done.touch()
-    return rendered_paths(scene_files(), out)
+    out = tmp_path_factory.getbasetemp().parent / "renders"  # this run's folder; each worker's basetemp lies in it
+    out.mkdir(exist_ok=True)
+    paths = rendered_paths(scene_files(), out)
+    for scene, png in zip(scene_files(), paths.values(), strict=True):
+        if _claimed(png):
+            _render((str(scene), str(png.with_suffix(".part.png"))))
+            png.with_suffix(".part.png").replace(png)  # whole files only: a waiting worker may read it at once
+    deadline = time.monotonic() + RENDER_WAIT_S
+    while not all(png.exists() for png in paths.values()):
+        if time.monotonic() > deadline:
+            missing = [key for key, png in paths.items() if not png.exists()]
+            pytest.fail(f"another worker claimed these scenes and did not render them in {RENDER_WAIT_S} s: {missing}")
+        time.sleep(0.5)
+    return paths
