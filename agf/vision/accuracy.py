@@ -9,12 +9,13 @@ accepted measurement outside them is a wrong accept, the worst outcome there is.
 from __future__ import annotations
 
 import statistics
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
 from agf.camera import CameraModel
 from agf.config import ForkGeometry, SearchVolume
-from agf.errors import MeasurementError
+from agf.errors import MeasurementError, OverexposedError
 from agf.geometry import Transform
 from agf.pallets import PalletType
 
@@ -43,6 +44,7 @@ class AccuracyTally:
     wrong: list[str] = field(default_factory=list)
     measured: int = 0
     rows: list[tuple[str, dict[str, float] | None, str]] = field(default_factory=list)  # name, errors, verdict
+    shortened: dict[str, bool] = field(default_factory=dict)  # measured after shorter exposures: within bounds?
 
     def measure(
         self,
@@ -55,17 +57,31 @@ class AccuracyTally:
         forks: ForkGeometry,
         truth: Transform,
         truth_loaded: bool,
+        shorter: Iterable[Any] = (),
     ) -> None:
-        """Measure one frame without a prior and count it, measured or refused."""
+        """Measure one frame without a prior and count it, measured or refused. ``shorter``: the same view with
+        ever shorter exposures, taken one by one while the vision refuses a frame as overexposed, as the controller
+        asks its camera for them (``ControllerConfig.exposures``); none by default."""
         from agf.vision.measure import measure_pallet
 
-        try:
-            detail = measure_pallet(image, camera, camera_in_fork, pallet, volume, forks=forks)
-        except MeasurementError as exc:
-            self.add_refused(name, str(exc))
-            return
+        retakes, shortened = iter(shorter), False
+        while True:
+            try:
+                detail = measure_pallet(image, camera, camera_in_fork, pallet, volume, forks=forks)
+            except OverexposedError as exc:
+                image, shortened = next(retakes, None), True
+                if image is not None:
+                    continue
+                self.add_refused(name, str(exc))
+                return
+            except MeasurementError as exc:
+                self.add_refused(name, str(exc))
+                return
+            break
         m = detail.measurement
-        self.add_measured(name, m.pallet_in_fork, truth, m.loaded == truth_loaded, m.timing_ms)
+        errors = self.add_measured(name, m.pallet_in_fork, truth, m.loaded == truth_loaded, m.timing_ms)
+        if shortened:
+            self.shortened[name] = within_bounds(errors) and m.loaded == truth_loaded
 
     def add_measured(
         self, name: str, estimate: Transform, truth: Transform, right_hypothesis: bool, timing_ms: dict[str, float]
@@ -101,4 +117,8 @@ class AccuracyTally:
             "median": {k: statistics.median(v) for k, v in self.errors.items() if v},
             "max": {k: max(v) for k, v in self.errors.items() if v},
             "timing_ms_median": {k: statistics.median(v) for k, v in self.timing.items()},
+            # measured only after shorter exposures (the first frame refused as overexposed), and of those within
+            # the bounds: within_bounds counts them, first_frames_within_bounds does not
+            "after_shorter_exposure": sorted(self.shortened),
+            "first_frames_within_bounds": self.measured - len(self.wrong) - sum(self.shortened.values()),
         }

@@ -102,6 +102,13 @@ def render(
     return pixels_sent(_sensor_look(image, look, rng)), truth(scene, camera)
 
 
+def exposed(scene: Scene, scale: float) -> Scene:
+    """``scene`` as a camera sees it with its exposure scaled by ``scale``: the scene's light scaled, to 0.05 at
+    least (an Environment holds no less: a dimmer one is not a scene the renderer draws differently)."""
+    light = max(scene.environment.light * scale, 0.05)
+    return dataclasses.replace(scene, environment=dataclasses.replace(scene.environment, light=light))
+
+
 def truth(scene: Scene, camera: CameraModel) -> dict[str, Any]:
     """Ground truth: poses (mm, deg), loaded, and pocket-corner pixels of the target pallet."""
     fork_in_camera = scene.camera_in_fork.inverse()

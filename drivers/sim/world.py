@@ -50,7 +50,7 @@ from drivers.sim.collision import clearance, pallet_parts, signed_distances, tin
 from drivers.sim.drive import start_simulated_drives
 from drivers.sim.fast_render import camera_output
 from drivers.sim.looks import draw_look
-from drivers.sim.render import catalogued, support_box
+from drivers.sim.render import catalogued, exposed, support_box
 
 # Axes at the start of a pick (m, rad): reach 0.15 m leaves the 1.3 m stroke room for a pallet 400 mm
 # ahead plus 850 mm of stand-off and insertion (at 0.3 m, six of 200 random picks were out of reach).
@@ -77,9 +77,7 @@ class RenderedCamera(FrameSource):
             self.world.frames_lost -= 1
             return None
         scene = self.world.scene_now()
-        # an Environment holds light 0.05 at least: a dimmer one is not a scene the renderer draws differently
-        exposed = dataclasses.replace(scene.environment, light=max(scene.environment.light * self.exposure, 0.05))
-        sent = camera_output(dataclasses.replace(scene, environment=exposed), self.world.camera)
+        sent = camera_output(exposed(scene, self.exposure), self.world.camera)
         self.world.frame_truths.append(scene.pallet.in_fork)
         return sent
 

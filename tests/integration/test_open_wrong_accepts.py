@@ -63,3 +63,20 @@ def test_bench_campaign_case_measures_the_first_frames_of_campaign_picks():
     assert figures["wrong_accepts"] == 0, figures["wrong"]
     assert figures["within_bounds"] + len(figures["refused"]) == 4
     assert all(reason.startswith("seed-7/pick-") for reason in figures["refused"])
+
+
+def test_bench_takes_a_frame_refused_as_overexposed_again_with_the_controllers_shorter_exposures():
+    """A random look of a paper scene whose top deck the drawn exposure clips (refused: "the top deck is
+    overexposed"): ``agf bench`` takes the view again at the shorter exposures a pick's controller asks for, and
+    counts the measurement within the bounds, but not among the first frames measured within them."""
+    import dataclasses
+
+    from drivers.sim.vision_bench import SCENES as BENCH_SCENES
+    from drivers.sim.vision_bench import measure_scenes, rendered_fast
+
+    base = load_scene(BENCH_SCENES / "paper/unloaded-low-flat.yaml")
+    key = "paper/unloaded-low-flat/look-1"
+    scene = dataclasses.replace(base, look="random", seed=base.seed * 100 + 2)  # as accuracy.randomised draws it
+    figures = measure_scenes([(key, scene)], rendered_fast, shorter_exposures=True).summary()
+    assert figures["after_shorter_exposure"] == [key], figures["refused"]
+    assert figures["within_bounds"] == 1 and figures["first_frames_within_bounds"] == 0, figures
