@@ -181,12 +181,12 @@ def measure_scenes(scenes: list[tuple[str, Scene]], frame: Any, shorter_exposure
     shorter exposures a pick's controller asks the simulated camera for (random looks draw their exposure)."""
     config = load_config(DEFAULT_CONFIG)
     catalogue = load_pallets(config.vision.pallets)
-    retakes = ControllerConfig() if shorter_exposures else dataclasses.replace(ControllerConfig(), exposures=0)
+    controller = ControllerConfig()
+    scales = [controller.exposure_step ** (k + 1) for k in range(controller.exposures if shorter_exposures else 0)]
     tally = AccuracyTally()
     for key, scene in scenes:
         pallet = catalogue[scene.pallet.type]
         camera = load_camera(scene.camera)
-        scales = [retakes.exposure_step ** (k + 1) for k in range(retakes.exposures)]
         shorter = (frame(exposed(scene, scale), f"{key}/exposure-{scale:.3f}") for scale in scales)
         tally.measure(
             key, frame(scene, key), camera, scene.camera_in_fork, pallet, config.vision.search, config.forks,

@@ -89,12 +89,13 @@ def rendered(tmp_path_factory, worker_id: str) -> dict[str, Path]:
     pytest-xdist the workers share the run's temporary folder and render the scenes between them: each worker that
     asks claims the scenes nobody has claimed yet, one at a time, and then waits for the others' claims, so the
     renders use every worker that needs them and none waits idle for another to render them all."""
+    scenes = scene_files()
     if worker_id == "master":
-        return render_all(scene_files(), tmp_path_factory.mktemp("renders"))
+        return render_all(scenes, tmp_path_factory.mktemp("renders"))
     out = tmp_path_factory.getbasetemp().parent / "renders"  # this run's folder; each worker's basetemp lies in it
     out.mkdir(exist_ok=True)
-    paths = rendered_paths(scene_files(), out)
-    for scene, png in zip(scene_files(), paths.values(), strict=True):
+    paths = rendered_paths(scenes, out)
+    for scene, png in zip(scenes, paths.values(), strict=True):
         if _claimed(png):
             _render((str(scene), str(png.with_suffix(".part.png"))))
             png.with_suffix(".part.png").replace(png)  # whole files only: a waiting worker may read it at once
