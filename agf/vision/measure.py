@@ -50,6 +50,7 @@ from agf.vision.pitch import (
     PitchConfig,
     PitchEvidence,
     deck_corner_misses,
+    deck_front_yaw,
     loaded_evidence,
     pose_from_deck_edges,
     unloaded_evidence,
@@ -114,6 +115,13 @@ class MeasureConfig:
     # deck's: campaign seed 7, pick 386 (a shadow's edges beside an unloaded deck on a truck bed) kept a pitch
     # 1.9 deg off, its face 34 mm low, from edges 1.2 deg off the face's yaw.
     face_fallback_yaw: float = math.radians(0.5)
+    # A deck edge that follows something beside the deck (shading on a floor as light as the deck) turns the pair's
+    # direction in yaw as well as in pitch, and the face's own yaw is too loose to tell (up to 0.44 deg off where the
+    # deck edges were right). The top deck's front edge gives the yaw alone (pitch.deck_front_yaw): at the true pose of
+    # 70 unloaded frames within 0.05 deg of it, where the deck edges of the frames accepted 0.27 and 0.14 deg off in
+    # pitch (campaign seed 7 pick 18 seen from 300 mm lower, pick 82) were 0.15 and 0.13 deg off in yaw, and of those
+    # accepted within the bounds 0.045 at most. The deck edges' yaw must agree with the front edge's within this.
+    deck_front_yaw: float = math.radians(0.08)
     # At a new pitch the pose is refined from the last one when the wide search was unambiguous (its
     # margin at least the pose search's minimum); a refinement moving it further than this is replaced
     # by a search nearby.
@@ -335,6 +343,24 @@ class _Frame:
                               dataclasses.replace(self.config.pitch, colour_edges=True))
         check_deck_under_load(deck.ratio, self.config.pitch, " in the colour frame's gradient")
 
+    def check_deck_edges_yaw(self, pose: PoseEstimate, edges: PitchEvidence) -> None:
+        """Refuse the deck ``edges`` where their direction's yaw differs from the yaw the top deck's front edge gives
+        (:func:`deck_front_yaw`, searched at ``pose``) by more than :attr:`MeasureConfig.deck_front_yaw`; where that
+        edge is not found, nothing is checked."""
+        with self.timed("pitch"):
+            front = deck_front_yaw(self.gray, self.camera, self.camera_in_fork, self.pallet, pose.pallet_in_fork,
+                                   self.config.pitch, colour=self.colour)
+        if front is None:
+            return
+        forward = self.camera_in_fork.apply_direction(edges.direction)
+        turned = abs(math.remainder(math.atan2(forward[1], forward[0]) - front, math.tau))
+        if turned > self.config.deck_front_yaw:
+            raise MeasurementError(
+                f"no trustworthy pitch: the top deck's edges turn the pallet {math.degrees(turned):.2f} deg in yaw "
+                f"from its front edge (at most {math.degrees(self.config.deck_front_yaw):.2f}), so one of them is not "
+                "the deck's and their pitch turns with it; refusing rather than guessing"
+            )
+
     def check_fallback(
         self, placed: PoseEstimate, own: PoseEstimate, agreement: EdgeAgreement, other: EdgeAgreement,
         edges: PitchEvidence,
@@ -431,6 +457,8 @@ class _Attempt:
         check_pitch_sigma(chosen.hypothesis, chosen.sigma, config.max_sigma_pitch)
         if chosen.hypothesis == "loaded" and frame.colour is not None:
             frame.check_deck_in_colour(pose)
+        if chosen.hypothesis == "unloaded":
+            frame.check_deck_edges_yaw(pose, chosen)
         placed = [self.onto_deck_edges(pose, chosen)] if chosen.hypothesis == "unloaded" and chosen.placed else []
         pose, agreement = frame.confirmed(placed + [pose], chosen, len(placed))
         if self.prior is None:

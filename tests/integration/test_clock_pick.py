@@ -530,10 +530,22 @@ def test_regression_campaign_picks_of_seed_7_a_deck_clipped_in_one_channel_gives
 # Session 50: a load face whose lines fix the pitch loosely counts as no face where it agrees with the load's edges
 # (pitch.py _without_vague_face). 723 left the list (its own regression test above); 488 joined: it inserts now, its
 # first measurement 0.053 deg off, its verifying frame 0.102 deg (found by the campaign's picks 0-728 on that code).
+# Session 53: 82, 324, 435, 674, 764 and 791 left it (test_regression_campaign_picks_of_seed_7_deck_edges_turned_from_
+# the_front_edge_accept_nothing_outside_the_bounds).
 OPEN_CAMPAIGN_WRONG_ACCEPTS = (
-    55, 82, 122, 209, 227, 324, 336, 413, 435, 480, 488, 530, 554, 580, 617, 632, 660, 674, 694, 700, 742, 764, 791,
-    890, 952,
+    55, 122, 209, 227, 336, 413, 480, 488, 530, 554, 580, 617, 632, 660, 694, 700, 742, 890, 952,
 )
+
+
+@pytest.mark.parametrize("index", (82, 324, 435, 674, 764, 791))
+def test_regression_campaign_picks_of_seed_7_deck_edges_turned_from_the_front_edge_accept_nothing_outside_the_bounds(
+    index,
+):
+    """Open wrong accepts until session 53: each accepted a measurement outside the bounds in pitch (pick 82 its
+    first frame, unloaded, 0.14 deg off, its deck edges 0.13 deg off in yaw at the true pose). Deck edges whose yaw
+    differs by over 0.08 deg from the yaw the top deck's front edge gives alone are now refused
+    (MeasureConfig.deck_front_yaw), and none of these picks accepts a measurement outside the bounds."""
+    assert_no_measurement_outside_bounds(7, index)
 
 
 @pytest.mark.parametrize("index", (394, 691, 751, 850))

@@ -440,6 +440,22 @@ def test_a_load_top_seen_from_above_gives_the_pitch_at_the_true_pose():
     assert abs(math.degrees(top.pitch - scene.pallet.in_fork.euler[1])) < 0.05
 
 
+def test_the_top_decks_front_edge_gives_the_yaw_from_a_pose_half_a_degree_off():
+    """Campaign seed 7, pick 82 (unloaded, first frame): its deck edges turn the pallet 0.13 deg in yaw at the true
+    pose; the top deck's front edge alone, searched from a pose turned 0.5 deg, gives the yaw within 0.02 deg."""
+    from agf.geometry import Transform
+    from agf.vision.grey import grey_from_bgr
+    from agf.vision.pitch import deck_front_yaw
+
+    scene, image = campaign_first_frame(7, 82)
+    truth = scene.pallet.in_fork
+    yaw, pitch, roll = truth.euler
+    turned = Transform.from_euler(*truth.translation, roll, pitch, yaw + math.radians(0.5))
+    found = deck_front_yaw(grey_from_bgr(image), load_camera(scene.camera), scene.camera_in_fork,
+                           CATALOGUE[scene.pallet.type], turned, colour=image)
+    assert found is not None and abs(math.degrees(found - yaw)) < 0.02
+
+
 def test_regression_campaign_pick_28_of_seed_7_verifying_a_deck_line_inside_the_edge_is_not_taken_for_it():
     """One deck edge's strongest line ran 70 mm inside the edge; the deck edges' pose was 73 mm from the face's and
     the pick was refused at verifying. The line through the deck's front corner, as strong, is the edge."""

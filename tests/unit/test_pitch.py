@@ -29,6 +29,7 @@ from agf.vision.pitch import (
     pose_from_deck_edges,
     tilt_sigma,
     unclipped_edge_columns,
+    yaw_from_circle,
 )
 
 PALLET = load_pallets(load_config(DEFAULT_CONFIG).vision.pallets)["jis-t11"]
@@ -404,3 +405,17 @@ def test_regression_a_deck_line_inside_the_edge_gives_way_to_the_edge_through_th
     inner_only = points[300:]
     inner = _line(panorama, inner_only, np.ones(len(inner_only)), lon, config)
     assert _line_through(corner, panorama, inner_only, np.ones(len(inner_only)), inner, lon, config) is None
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_yaw_from_circle_recovers_the_yaw_of_a_line_along_pallet_y(seed):
+    # the great circle of a line along pallet Y seen from the origin gives back the pose's yaw, whatever its pitch and
+    # roll, from a pose whose own yaw is up to 1 deg off
+    rng = np.random.default_rng(seed)
+    yaw, pitch, roll = np.radians(rng.uniform(-5, 5, 3))
+    pose = Transform.from_euler(*rng.uniform([0.2, -0.3, -0.4], [1.5, 0.3, 0.4]), roll, pitch, yaw)
+    along = pose.rotation[:, 1]
+    point = pose.apply(np.array([[0.0, rng.uniform(-0.5, 0.5), 0.07]]))[0]
+    normal = np.cross(point, along)
+    guess = Transform.from_euler(*pose.translation, roll, pitch, yaw + math.radians(rng.uniform(-1, 1)))
+    assert yaw_from_circle(normal / np.linalg.norm(normal), guess) == pytest.approx(yaw, abs=1e-9)
