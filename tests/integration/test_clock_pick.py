@@ -361,16 +361,6 @@ def test_a_verifying_frame_whose_pitch_is_refused_is_confirmed_at_the_measured_p
     assert [row["stage"] for row in replayed["measurements"]][-1] == "confirming" and replayed["ok"], replayed
 
 
-def test_regression_campaign_pick_674_of_seed_7_is_not_confirmed_at_a_first_pitch_its_deck_edges_contradict():
-    """An unloaded pallet whose first measurement was accepted 0.298 deg off in pitch (an open wrong accept) and whose
-    verifying frames were refused: its face was confirmed at that pitch and the pick inserted (session 37, before
-    check_kept_pitch). The verifying frame's deck edges pair 0.34 and 0.47 deg from it: refused."""
-    result, summary, _ = run_campaign_pick(7, 674)
-    assert not result.ok and summary["confirmations"] == 0
-    assert "the face was not confirmed where the plan expects it either: the unloaded edges of this frame" in \
-        result.reason, result.reason
-
-
 def run_campaign_pick(seed: int, index: int, config=CONFIG, logged: bool = False, as_written: bool = True):
     """Campaign pick ``index`` of ``seed`` in a simulated world (``as_written``: see conftest's campaign_scene_of):
     its result, summary (with its log's path when ``logged``, written where ``config`` records) and the true pose of

@@ -456,6 +456,27 @@ def test_the_top_decks_front_edge_gives_the_yaw_from_a_pose_half_a_degree_off():
     assert found is not None and abs(math.degrees(found - yaw)) < 0.02
 
 
+def test_a_pitch_kept_that_the_frames_deck_edges_contradict_is_not_confirmed():
+    """check_kept_pitch (confirm_pallet, unloaded), on the first frame of campaign seed 7 pick 5, whose deck edges give
+    the pitch within 0.01 deg at the true pose: a face confirmed at the true pitch passes, one at a pitch kept 0.3 deg
+    off is refused. Until session 53 pick 674 tested it in a whole pick (its first measurement accepted 0.298 deg off,
+    the verifying frame's face then not confirmed at that pitch); since deck edges turned from the front edge's yaw are
+    refused, that pick no longer accepts its first measurement, and inserts within the bounds."""
+    from agf.geometry import Transform
+    from agf.vision.grey import grey_from_bgr
+    from agf.vision.measure import check_kept_pitch
+
+    scene, image = campaign_first_frame(7, 5)
+    truth = scene.pallet.in_fork
+    frame = (grey_from_bgr(image), image, load_camera(scene.camera), scene.camera_in_fork,
+             CATALOGUE[scene.pallet.type])
+    check_kept_pitch(*frame, truth)
+    yaw, pitch, roll = truth.euler
+    off = Transform.from_euler(*truth.translation, roll, pitch + math.radians(0.3), yaw)
+    with pytest.raises(MeasurementError, match="none within 0.10 deg"):
+        check_kept_pitch(*frame, off)
+
+
 def test_regression_campaign_pick_28_of_seed_7_verifying_a_deck_line_inside_the_edge_is_not_taken_for_it():
     """One deck edge's strongest line ran 70 mm inside the edge; the deck edges' pose was 73 mm from the face's and
     the pick was refused at verifying. The line through the deck's front corner, as strong, is the edge."""
