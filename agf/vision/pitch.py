@@ -845,8 +845,8 @@ def _evidences(
     pallet_in_camera = camera_in_fork.inverse() @ pallet_in_fork
     pairs = [[pallet_in_camera.apply(s) for s in pair] for pair in pairs_p]
     reaches = [[pallet_in_camera.apply(s) for s in pair] for pair in reaches_p] if reaches_p is not None else pairs
-    search = _searched(hypothesis, gray, camera, camera_in_fork, pallet_in_fork, [s for pair in pairs + reaches
-                                                                                 for s in pair], axis_index, config,
+    segments = [s for pair in pairs + reaches for s in pair]
+    search = _searched(hypothesis, gray, camera, camera_in_fork, pallet_in_fork, segments, axis_index, config,
                        anchored=anchored, face=face, colour=colour)
     regions = [[_region(search.panorama, segment, config) for segment in pair] for pair in pairs]
     reach_regions = [[_region(search.panorama, far, config) for far in pair] for pair in reaches]

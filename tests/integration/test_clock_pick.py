@@ -520,8 +520,8 @@ def test_regression_campaign_picks_of_seed_7_a_deck_clipped_in_one_channel_gives
 # Session 50: a load face whose lines fix the pitch loosely counts as no face where it agrees with the load's edges
 # (pitch.py _without_vague_face). 723 left the list (its own regression test above); 488 joined: it inserts now, its
 # first measurement 0.053 deg off, its verifying frame 0.102 deg (found by the campaign's picks 0-728 on that code).
-# Session 53: 82, 324, 435, 674, 764 and 791 left it (test_regression_campaign_picks_of_seed_7_deck_edges_turned_from_
-# the_front_edge_accept_nothing_outside_the_bounds).
+# Session 53: 82, 324, 435, 674, 764 and 791 left it, deck edges turned in yaw from the deck's front edge being refused
+# (their test follows the list).
 OPEN_CAMPAIGN_WRONG_ACCEPTS = (
     55, 122, 209, 227, 336, 413, 480, 488, 530, 554, 580, 617, 632, 660, 694, 700, 742, 890, 952,
 )
