@@ -407,7 +407,7 @@ def loaded_evidence(
         if not checked.valid:
             return checked
         top = load_top_evidence(gray, camera, camera_in_fork, pallet, pallet_in_fork, config, colour=colour)
-        return _checked_by_load_top(checked, top, config)
+        return _checked_by_load_top(checked, top, config, "load's edges")
     if face is None:
         return _confirmed_by_load_top(pair, None, gray, camera, camera_in_fork, pallet, pallet_in_fork, config, colour)
     nearest = min(pair.candidates, key=lambda c: abs(c - face.pitch))
@@ -419,15 +419,33 @@ def loaded_evidence(
         lead = face.pitch if face.sigma <= config.face_max_sigma else math.nan
         return _confirmed_by_load_top(_refused(pair, _edges_against_face(pair.candidates, face), lead), face, gray,
                                       camera, camera_in_fork, pallet, pallet_in_fork, config, colour)
-    if alone:
-        sigma = face.sigma if miss > config.face_agreement else math.hypot(face.sigma, miss / 2)
-        return dataclasses.replace(pair, valid=True, pitch=face.pitch, direction=face.direction, ambiguous=False,
-                                   sigma=sigma)
-    # Where a face that does not fix the pitch alone agrees with the edges, the edges count as much as the face:
-    # its lines lean together by up to 0.13 deg (one carton row's joints), the edges err on their own; at the true
-    # pose of 36 random looks the face was up to 0.13 deg off where the two agreed, their mean at most 0.08.
-    return _loaded_at(pair, (face.pitch + nearest) / 2, math.hypot(face.sigma, miss / 2), camera_in_fork,
-                      pallet_in_fork)
+    # A face that is no pitch alone picks among an ambiguous pair's pitches only where one of them agrees with it:
+    # paper scene loaded-middle-front-up under random look 4, its face's 10 lines 0.17 deg low to +-0.034, took the
+    # nearer of two rival pairings 0.11 and 0.07 deg low (the edges' own pair 0.12 high) and was accepted 0.135 off.
+    rivals = [c for c in pair.candidates
+              if abs(c - face.pitch) <= config.face_agreement and abs(c - nearest) > config.rival_pitch]
+    if pair.ambiguous and rivals and not alone:
+        refused = _refused(pair, f"{_edges_against_face(pair.candidates, face)}, which agrees with more than one of "
+                                 "the edges' pitches")
+        return _confirmed_by_load_top(refused, face, gray, camera, camera_in_fork, pallet, pallet_in_fork, config,
+                                      colour)
+    if alone and miss > config.face_agreement:
+        measured = dataclasses.replace(pair, valid=True, pitch=face.pitch, direction=face.direction, ambiguous=False,
+                                       sigma=face.sigma)
+        source = "lines on the load's face"
+    else:
+        # Where the face agrees with the edges, the edges count as much as the face: its lines lean together by up to
+        # 0.13 deg (one carton row's joints), the edges err on their own; at the true pose of 36 random looks the face
+        # was up to 0.13 deg off where the two agreed, their mean at most 0.08. So also a face that fixes the pitch
+        # alone: campaign seed 7 pick 107's verifying frame, 15 lines to +-0.025 deg 0.11 deg high, its edges (a line
+        # beside one pairing 0.046 deg from it) within 0.04 deg, was accepted 0.109 deg off from the face alone.
+        measured = _loaded_at(pair, (face.pitch + nearest) / 2, math.hypot(face.sigma, miss / 2), camera_in_fork,
+                              pallet_in_fork)
+        source = "load's edges and the lines on its face"
+    # The face's lines can all lean one way (cartons stacked askew): campaign seed 7 pick 23, 22 lines within
+    # 0.021 deg, 0.114 deg off at the true pose and 0.10-0.17 off around it, its top face 0.068 deg off the other way.
+    top = load_top_evidence(gray, camera, camera_in_fork, pallet, pallet_in_fork, config, colour=colour)
+    return _checked_by_load_top(measured, top, config, source)
 
 
 def _without_vague_face(
@@ -487,19 +505,21 @@ def _checked_by_wide_face(
                     wide.pitch if wide.sigma <= config.face_max_sigma else math.nan)
 
 
-def _checked_by_load_top(pair: PitchEvidence, top: PitchEvidence | None, config: PitchConfig) -> PitchEvidence:
-    """A valid pair of load edges that no line on the load's face confirmed, refused where the load's ``top`` face
-    (:func:`load_top_evidence`, fitted to :attr:`PitchConfig.top_max_sigma`) gives a pitch more than
-    :attr:`PitchConfig.face_agreement` from theirs; else ``pair`` as it is. Two edges alone follow a rival line as
-    easily as the load's outline: a loaded pallet pitched 3.32 deg, seen from 150 mm below campaign seed 7 pick 29's
-    start, was accepted 0.15 deg off from its edges alone, its top face at 3.26 deg (its face's lines, 5-6 of them,
-    found at some poses and not at others)."""
+def _checked_by_load_top(
+    measured: PitchEvidence, top: PitchEvidence | None, config: PitchConfig, source: str
+) -> PitchEvidence:
+    """A valid loaded hypothesis (its pitch from the load's edges alone or from the lines on its face, named by
+    ``source``), refused where the load's ``top`` face (:func:`load_top_evidence`, fitted to
+    :attr:`PitchConfig.top_max_sigma`) gives a pitch more than :attr:`PitchConfig.face_agreement` from it; else
+    ``measured`` as it is. Two edges alone follow a rival line as easily as the load's outline: a loaded pallet
+    pitched 3.32 deg, seen from 150 mm below campaign seed 7 pick 29's start, was accepted 0.15 deg off from its edges
+    alone, its top face at 3.26 deg (its face's lines, 5-6 of them, found at some poses and not at others)."""
     if top is None or not top.valid or top.sigma > config.top_max_sigma:
-        return pair
-    if abs(top.pitch - pair.pitch) <= config.face_agreement:
-        return pair
-    return _refused(pair, f"the load's edges give a pitch of {math.degrees(pair.pitch):.2f} deg, its top face "
-                          f"{math.degrees(top.pitch):.2f} deg")
+        return measured
+    if abs(top.pitch - measured.pitch) <= config.face_agreement:
+        return measured
+    return _refused(measured, f"the {source} give a pitch of {math.degrees(measured.pitch):.2f} deg, the load's top "
+                              f"face {math.degrees(top.pitch):.2f} deg")
 
 
 def _loaded_at(

@@ -519,3 +519,40 @@ def test_a_face_is_confirmed_where_a_plan_expects_it_at_the_measured_pitch_and_r
     aside = Transform(truth.rotation, truth.translation + [0.0, 0.15, 0.0])
     with pytest.raises(MeasurementError, match="from where the plan expects it|no convincing pallet front face"):
         confirm_pallet(*args, aside, loaded=False, sigma_pitch=0.0007, forks=CONFIG.forks)
+
+
+def test_regression_face_lines_leaning_together_against_the_load_top_are_refused():
+    """Campaign seed 7, pick 23 (loaded, pitch 4.98 deg, camera above the load): at the true pose the 22 lines on the
+    load's face agree to +-0.021 deg on a pitch 0.114 deg low, enough to count alone, while the side edges of the
+    load's top face give 0.068 deg high. A load's face, alone or with its edges, must not disagree with a top face
+    fitted to +-0.035 deg by more than 0.12 deg (pitch.py _checked_by_load_top)."""
+    from agf.vision.grey import grey_from_bgr
+    from agf.vision.pitch import loaded_evidence
+
+    scene, image = campaign_first_frame(7, 23)
+    pallet, camera, truth = CATALOGUE[scene.pallet.type], load_camera(scene.camera), scene.pallet.in_fork
+    evidence = loaded_evidence(grey_from_bgr(image), camera, scene.camera_in_fork, pallet, truth, colour=image)
+    assert not evidence.valid and "the load's top face" in evidence.note, evidence.note
+    try:
+        detail = measure_pallet(image, camera, scene.camera_in_fork, pallet, CONFIG.vision.search, forks=CONFIG.forks)
+    except MeasurementError as exc:
+        assert str(exc)
+        return
+    assert within_bounds(errors(scene, detail.measurement)), errors(scene, detail.measurement)
+
+
+def test_regression_a_face_agreeing_with_two_of_an_ambiguous_pairs_pitches_does_not_pick_one():
+    """Paper scene loaded-middle-front-up under random look 4 (tests/data/scenes/fixed-wrong-accepts): at the true
+    pose its load's edges give 0.12 deg high, paired with lines beside them 0.11 and 0.07 deg low and 0.16 high; the
+    10 lines on its face, 0.17 deg low to +-0.034 deg, agree with both low pairings. It took the nearer and was
+    accepted 0.135 deg off (with session 54's Hough peaks). A face that does not fix the pitch alone cannot choose
+    between two pitches it agrees with: refused."""
+    from agf.vision.grey import grey_from_bgr
+    from agf.vision.pitch import loaded_evidence
+    from drivers.sim.fast_render import render_fast
+
+    scene = load_scene(SCENES / "fixed-wrong-accepts/loaded-middle-front-up-look-4.yaml")
+    image = render_fast(scene)[0]
+    evidence = loaded_evidence(grey_from_bgr(image), load_camera(scene.camera), scene.camera_in_fork,
+                               CATALOGUE[scene.pallet.type], scene.pallet.in_fork, colour=image)
+    assert not evidence.valid and "agrees with more than one of the edges' pitches" in evidence.note, evidence.note
