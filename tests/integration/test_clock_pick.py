@@ -528,10 +528,11 @@ OPEN_CAMPAIGN_WRONG_ACCEPTS = (55, 336, 413, 480, 488, 554, 617, 632, 660, 742, 
 @pytest.mark.parametrize("index", (122, 209, 580, 694, 700, 952))
 def test_regression_campaign_picks_of_seed_7_a_face_agreeing_with_the_edges_is_averaged_with_them(index):
     """Open wrong accepts until session 54, all loaded, each accepting one frame 0.107-0.335 deg off in pitch (the
-    verifying frame of picks 122, 209, 694 and 952, the first of 580 and 700), most from the lines on the load's face
-    taken alone where the edges agreed with them. Since the face's pitch is averaged with the edges' wherever the two
-    agree (agf/vision/pitch.py loaded_evidence), with the Hough peaks and the face choosing no pitch among two, the
-    worst of them is 0.091 deg off (700's first frame, its verifying frame then refused: the pick faults)."""
+    verifying frame of picks 122, 209, 694 and 952, the first of 580 and 700). With the Hough peaks alone they still
+    did; with session 54's loaded rules as well (agf/vision/pitch.py loaded_evidence: a face agreeing with the edges
+    averaged with them, a face choosing no pitch among two it agrees with, the top face's check) none does, the worst
+    0.091 deg off (700's first frame; its verifying frame is then refused and the pick faults). Which rule each pick
+    needed was not traced."""
     assert_no_measurement_outside_bounds(7, index, as_written=False)
 
 
