@@ -407,7 +407,7 @@ def loaded_evidence(
         if not checked.valid:
             return checked
         top = load_top_evidence(gray, camera, camera_in_fork, pallet, pallet_in_fork, config, colour=colour)
-        return _checked_by_load_top(checked, top, config, "load's edges")
+        return _checked_by_load_top(checked, top, config)
     if face is None:
         return _confirmed_by_load_top(pair, None, gray, camera, camera_in_fork, pallet, pallet_in_fork, config, colour)
     nearest = min(pair.candidates, key=lambda c: abs(c - face.pitch))
@@ -432,7 +432,6 @@ def loaded_evidence(
     if alone and miss > config.face_agreement:
         measured = dataclasses.replace(pair, valid=True, pitch=face.pitch, direction=face.direction, ambiguous=False,
                                        sigma=face.sigma)
-        source = "lines on the load's face"
     else:
         # Where the face agrees with the edges, the edges count as much as the face: its lines lean together by up to
         # 0.13 deg (one carton row's joints), the edges err on their own; at the true pose of 36 random looks the face
@@ -441,11 +440,7 @@ def loaded_evidence(
         # beside one pairing 0.046 deg from it) within 0.04 deg, was accepted 0.109 deg off from the face alone.
         measured = _loaded_at(pair, (face.pitch + nearest) / 2, math.hypot(face.sigma, miss / 2), camera_in_fork,
                               pallet_in_fork)
-        source = "load's edges and the lines on its face"
-    # The face's lines can all lean one way (cartons stacked askew): campaign seed 7 pick 23, 22 lines within
-    # 0.021 deg, 0.114 deg off at the true pose and 0.10-0.17 off around it, its top face 0.068 deg off the other way.
-    top = load_top_evidence(gray, camera, camera_in_fork, pallet, pallet_in_fork, config, colour=colour)
-    return _checked_by_load_top(measured, top, config, source)
+    return measured
 
 
 def _without_vague_face(
@@ -505,21 +500,24 @@ def _checked_by_wide_face(
                     wide.pitch if wide.sigma <= config.face_max_sigma else math.nan)
 
 
-def _checked_by_load_top(
-    measured: PitchEvidence, top: PitchEvidence | None, config: PitchConfig, source: str
-) -> PitchEvidence:
-    """A valid loaded hypothesis (its pitch from the load's edges alone or from the lines on its face, named by
-    ``source``), refused where the load's ``top`` face (:func:`load_top_evidence`, fitted to
-    :attr:`PitchConfig.top_max_sigma`) gives a pitch more than :attr:`PitchConfig.face_agreement` from it; else
-    ``measured`` as it is. Two edges alone follow a rival line as easily as the load's outline: a loaded pallet
-    pitched 3.32 deg, seen from 150 mm below campaign seed 7 pick 29's start, was accepted 0.15 deg off from its edges
-    alone, its top face at 3.26 deg (its face's lines, 5-6 of them, found at some poses and not at others)."""
+def _checked_by_load_top(measured: PitchEvidence, top: PitchEvidence | None, config: PitchConfig) -> PitchEvidence:
+    """A valid pair of load edges that no line on the load's face confirmed, refused where the load's ``top`` face
+    disagrees with it (:func:`load_top_disagrees`); else ``measured`` as it is. Two edges alone follow a rival line
+    as easily as the load's outline: a loaded pallet pitched 3.32 deg, seen from 150 mm below campaign seed 7 pick
+    29's start, was accepted 0.15 deg off from its edges alone, its top face at 3.26 deg (its face's lines, 5-6 of
+    them, found at some poses and not at others)."""
+    if not load_top_disagrees(measured.pitch, top, config):
+        return measured
+    return _refused(measured, f"the load's edges give a pitch of {math.degrees(measured.pitch):.2f} deg, its top face "
+                              f"{math.degrees(top.pitch):.2f} deg")
+
+
+def load_top_disagrees(pitch: float, top: PitchEvidence | None, config: PitchConfig) -> bool:
+    """Whether the load's ``top`` face (:func:`load_top_evidence`), fitted to :attr:`PitchConfig.top_max_sigma`,
+    gives a pitch more than :attr:`PitchConfig.face_agreement` from a loaded ``pitch`` (rad)."""
     if top is None or not top.valid or top.sigma > config.top_max_sigma:
-        return measured
-    if abs(top.pitch - measured.pitch) <= config.face_agreement:
-        return measured
-    return _refused(measured, f"the {source} give a pitch of {math.degrees(measured.pitch):.2f} deg, the load's top "
-                              f"face {math.degrees(top.pitch):.2f} deg")
+        return False
+    return abs(top.pitch - pitch) > config.face_agreement
 
 
 def _loaded_at(
