@@ -20,7 +20,6 @@ from agf.vision.panorama import Panorama
 Array = NDArray[np.float64]
 
 
-
 @dataclass(frozen=True)
 class SphereLine:
     """A great circle (the image of a 3D line through the viewpoint) and its support.

@@ -430,17 +430,15 @@ def loaded_evidence(
         return _confirmed_by_load_top(refused, face, gray, camera, camera_in_fork, pallet, pallet_in_fork, config,
                                       colour)
     if alone and miss > config.face_agreement:
-        measured = dataclasses.replace(pair, valid=True, pitch=face.pitch, direction=face.direction, ambiguous=False,
-                                       sigma=face.sigma)
-    else:
-        # Where the face agrees with the edges, the edges count as much as the face: its lines lean together by up to
-        # 0.13 deg (one carton row's joints), the edges err on their own; at the true pose of 36 random looks the face
-        # was up to 0.13 deg off where the two agreed, their mean at most 0.08. So also a face that fixes the pitch
-        # alone: campaign seed 7 pick 107's verifying frame, 15 lines to +-0.025 deg 0.11 deg high, its edges (a line
-        # beside one pairing 0.046 deg from it) within 0.04 deg, was accepted 0.109 deg off from the face alone.
-        measured = _loaded_at(pair, (face.pitch + nearest) / 2, math.hypot(face.sigma, miss / 2), camera_in_fork,
-                              pallet_in_fork)
-    return measured
+        return dataclasses.replace(pair, valid=True, pitch=face.pitch, direction=face.direction, ambiguous=False,
+                                   sigma=face.sigma)
+    # Where the face agrees with the edges, the edges count as much as the face: its lines lean together by up to
+    # 0.13 deg (one carton row's joints), the edges err on their own; at the true pose of 36 random looks the face
+    # was up to 0.13 deg off where the two agreed, their mean at most 0.08. So also a face that fixes the pitch
+    # alone: campaign seed 7 pick 107's verifying frame, 15 lines to +-0.025 deg 0.11 deg high, its edges (a line
+    # beside one pairing 0.046 deg from it) within 0.04 deg, was accepted 0.109 deg off from the face alone.
+    return _loaded_at(pair, (face.pitch + nearest) / 2, math.hypot(face.sigma, miss / 2), camera_in_fork,
+                      pallet_in_fork)
 
 
 def _without_vague_face(
@@ -500,16 +498,16 @@ def _checked_by_wide_face(
                     wide.pitch if wide.sigma <= config.face_max_sigma else math.nan)
 
 
-def _checked_by_load_top(measured: PitchEvidence, top: PitchEvidence | None, config: PitchConfig) -> PitchEvidence:
+def _checked_by_load_top(pair: PitchEvidence, top: PitchEvidence | None, config: PitchConfig) -> PitchEvidence:
     """A valid pair of load edges that no line on the load's face confirmed, refused where the load's ``top`` face
-    disagrees with it (:func:`load_top_disagrees`); else ``measured`` as it is. Two edges alone follow a rival line
+    disagrees with it (:func:`load_top_disagrees`); else ``pair`` as it is. Two edges alone follow a rival line
     as easily as the load's outline: a loaded pallet pitched 3.32 deg, seen from 150 mm below campaign seed 7 pick
     29's start, was accepted 0.15 deg off from its edges alone, its top face at 3.26 deg (its face's lines, 5-6 of
     them, found at some poses and not at others)."""
-    if not load_top_disagrees(measured.pitch, top, config):
-        return measured
-    return _refused(measured, f"the load's edges give a pitch of {math.degrees(measured.pitch):.2f} deg, its top face "
-                              f"{math.degrees(top.pitch):.2f} deg")
+    if not load_top_disagrees(pair.pitch, top, config):
+        return pair
+    return _refused(pair, f"the load's edges give a pitch of {math.degrees(pair.pitch):.2f} deg, its top face "
+                          f"{math.degrees(top.pitch):.2f} deg")
 
 
 def load_top_disagrees(pitch: float, top: PitchEvidence | None, config: PitchConfig) -> bool:
