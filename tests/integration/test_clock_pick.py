@@ -239,6 +239,10 @@ def test_a_pick_refused_from_higher_too_looks_once_more_from_higher_still_and_in
     assert all(abs(row["actual"]["reach"] - start["reach"]) < 1e-4 for row in viewing)
 
 
+@pytest.mark.xfail(
+    strict=True, raises=AssertionError,
+    reason="session 54's vision measures pick 597's first frame: the third move needs another such pick (open)",
+)
 def test_a_pick_refused_after_two_viewing_moves_makes_a_third_and_inserts():
     """Campaign pick 597 of seed 7: a loaded pallet 215 mm above the forks, refused at the start and after one viewing
     move ("a second line runs beside the loaded edges"), and after a second ("the load's edges and face give it only
