@@ -95,13 +95,14 @@ def hough_line(
     bins += np.arange(len(taus))[:, None] * (edges.size - 1)
     shape = (len(taus), edges.size - 1)
 
-    def votes(points: NDArray[np.int_]) -> Array:
-        """The accumulator (taus, bins) of the edge points of index ``points``."""
+    def votes(points: NDArray[np.int_] | slice) -> Array:
+        """The accumulator (taus, bins) of the edge points ``points`` selects: indices, or a slice, whose view of
+        every point's columns spares the copy that indexing by all of them made (10 % of a call)."""
         voting = inside[:, points]
         cast = np.broadcast_to(weights[None, points], voting.shape)[voting]
         return np.bincount(bins[:, points][voting], weights=cast, minlength=shape[0] * shape[1]).reshape(shape)
 
-    raw = votes(np.arange(len(directions)))
+    raw = votes(slice(None))
     fits: list[SphereLine] = []
     for _ in range(peaks):
         summed = raw.copy()  # each bin with its two neighbours: a line's votes straddle bin borders
