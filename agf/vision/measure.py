@@ -351,10 +351,14 @@ class _Frame:
         seed 7 pick 23's first frame, 22 lines within +-0.021 deg gave the pitch 0.114 deg low (0.10-0.17 deg low
         around it), enough to count alone, while the top face gave it 0.068 deg high; its edges, a line beside one,
         gave two pitches. Checked once the pitch has settled, as the top's search costs as much as the load's
-        edges', and only where the edges' own pair does not confirm it (:func:`_pair_confirms`)."""
-        with self.timed("pitch"):
-            top = load_top_evidence(self.gray, self.camera, self.camera_in_fork, self.pallet, pose.pallet_in_fork,
-                                    self.config.pitch, colour=self.colour)
+        edges', and only where the edges' own pair does not confirm it (:func:`_pair_confirms`). A top the evidence
+        was already checked against (:attr:`PitchEvidence.top`, searched at ``pose``: a loaded hypothesis is chosen
+        only where it was searched afresh there) is not searched again."""
+        top = chosen.top
+        if top is None:
+            with self.timed("pitch"):
+                top = load_top_evidence(self.gray, self.camera, self.camera_in_fork, self.pallet, pose.pallet_in_fork,
+                                        self.config.pitch, colour=self.colour)
         if load_top_disagrees(chosen.pitch, top, self.config.pitch):
             raise MeasurementError(
                 f"no trustworthy pitch: the load's face and edges give a pitch of {math.degrees(chosen.pitch):.2f} "

@@ -200,6 +200,10 @@ class PitchEvidence:
         every channel (:func:`deck_top_clipped`; 0 otherwise).
     overexposed : bool
         Not valid because the highlights beside the edges are clipped: a shorter exposure may find the edges.
+    top : PitchEvidence or None
+        Loaded, where its edges and face did not settle the pitch by themselves: the load's top face
+        (:func:`load_top_evidence`) searched at the same pose and checked against; None where none was searched or
+        the camera is not above the load.
     """
 
     hypothesis: str
@@ -222,6 +226,7 @@ class PitchEvidence:
     shown: float = 0.0
     top_clipped: float = 0.0
     overexposed: bool = False
+    top: PitchEvidence | None = None
 
     @property
     def offered(self) -> list[float]:
@@ -507,9 +512,9 @@ def _checked_by_load_top(pair: PitchEvidence, top: PitchEvidence | None, config:
     29's start, was accepted 0.15 deg off from its edges alone, its top face at 3.26 deg (its face's lines, 5-6 of
     them, found at some poses and not at others)."""
     if not load_top_disagrees(pair.pitch, top, config):
-        return pair
-    return _refused(pair, f"the load's edges give a pitch of {math.degrees(pair.pitch):.2f} deg, its top face "
-                          f"{math.degrees(top.pitch):.2f} deg")
+        return dataclasses.replace(pair, top=top)
+    return _refused(dataclasses.replace(pair, top=top), f"the load's edges give a pitch of "
+                    f"{math.degrees(pair.pitch):.2f} deg, its top face {math.degrees(top.pitch):.2f} deg")
 
 
 def load_top_disagrees(pitch: float, top: PitchEvidence | None, config: PitchConfig) -> bool:
@@ -554,13 +559,13 @@ def _confirmed_by_load_top(
         return refused
     top = load_top_evidence(gray, camera, camera_in_fork, pallet, pallet_in_fork, config, colour=colour)
     if top is None or not top.valid or top.sigma > config.top_max_sigma:
-        return refused
+        return dataclasses.replace(refused, top=top)
     nearest = min(cues, key=lambda c: abs(c - top.pitch))
     miss = abs(nearest - top.pitch)
     if miss > config.face_agreement:
-        return refused
-    return _loaded_at(refused, (top.pitch + nearest) / 2, math.hypot(top.sigma, miss / 2), camera_in_fork,
-                      pallet_in_fork)
+        return dataclasses.replace(refused, top=top)
+    return _loaded_at(dataclasses.replace(refused, top=top), (top.pitch + nearest) / 2, math.hypot(top.sigma, miss / 2),
+                      camera_in_fork, pallet_in_fork)
 
 
 def load_top_evidence(
