@@ -4,7 +4,8 @@ A campaign folder holds ``campaign.json`` (what was run) and ``results.jsonl``, 
 finished pick (the simulated world's ``pick_summary`` with its run index). The report counts inserted,
 refused, faulted and collided picks, tables the refusal and fault reasons, plots the measurement error
 against the pallet's pitch, height, yaw and the light, the clearance distribution and the cycle times,
-and links every failure to its pick's recorder file when the pick wrote one.
+counts the outcomes by the pallet's height and pitch at the start and its load (where the controller picks
+and where it refuses), and links every failure to its pick's recorder file when the pick wrote one.
 """
 
 from __future__ import annotations
@@ -48,6 +49,9 @@ OPTIONAL = {
     "exposure_changes": int,
 }
 COLOURS = {"inserted": "tab:green", "refused": "tab:orange", "faulted": "tab:purple", "collided": "tab:red"}
+# The pallet's start pose keys the outcomes are counted by (band width, axis label): 100 mm of height is about
+# what a viewing move changes; a degree of pitch what one step of the first searches covers.
+BANDS = {"z_mm": (100.0, "pallet height at the start, in fork frame [mm]"), "pitch_deg": (1.0, "pallet pitch [deg]")}
 
 
 def _measured_again(results: list[dict[str, Any]], key: str, what: str) -> list[str]:
@@ -146,6 +150,33 @@ def reason_class(reason: str | None) -> str:
     return re.sub(r"(?<![\w.+])[-+]?\d+(\.\d+)?(?!\w)", "#", first)  # "+-0.07" keeps its "+-"
 
 
+def outcomes_by_band(results: Iterable[Mapping[str, Any]], key: str, width: float) -> dict[bool, dict[float, Counter]]:
+    """The outcomes counted per band of the pallet's start pose, for unloaded (False) and loaded (True) pallets.
+
+    Parameters
+    ----------
+    key : str
+        A key of the scene's ``pallet_in_fork`` (``"z_mm"``, ``"pitch_deg"``, ...).
+    width : float
+        Band width in the key's unit; a band is named by its lower end, a multiple of ``width``.
+
+    Returns
+    -------
+    dict
+        ``{loaded: {band_low: Counter(outcome -> picks)}}``, bands in increasing order. Picks without a scene
+        (refused before the world existed) are left out.
+    """
+    if not width > 0:
+        raise ValueError(f"band width must be positive, got {width}")
+    counts: dict[bool, dict[float, Counter]] = {False: {}, True: {}}
+    for record in results:
+        scene = record.get("scene")
+        if scene:
+            low = math.floor(scene["pallet_in_fork"][key] / width) * width
+            counts[bool(scene.get("loaded"))].setdefault(low, Counter())[record["outcome"]] += 1
+    return {loaded: dict(sorted(bands.items())) for loaded, bands in counts.items()}
+
+
 def measurement_errors(results: Iterable[Mapping[str, Any]]) -> list[dict[str, Any]]:
     """Every measurement with its truth: ``{"run", "index", "error": {key: measured - true}, "scene"}``."""
     rows = []
@@ -217,6 +248,46 @@ def _clearance_plot(results: list[Mapping[str, Any]], path: Path) -> str:
     ax.grid(True, alpha=0.4)
     ax.set_title("clearance distribution (left of the red line: collision)")
     return _save(figure, path)
+
+
+def _outcome_plot(results: list[Mapping[str, Any]], path: Path) -> str:
+    """Stacked outcome counts per band (:data:`BANDS`, columns) of unloaded and loaded pallets (rows)."""
+    figure = Figure(figsize=(13, 6.5), layout="constrained")
+    axes = figure.subplots(2, len(BANDS), squeeze=False)
+    for column, (key, (width, xlabel)) in enumerate(BANDS.items()):
+        by_load = outcomes_by_band(results, key, width)
+        for row, loaded in enumerate((False, True)):
+            ax, bands = axes[row, column], by_load[loaded]
+            lows = np.array(list(bands), float)
+            bottom = np.zeros(len(lows))
+            for outcome in OUTCOMES:
+                heights = np.array([bands[low][outcome] for low in bands], float)
+                if heights.any():
+                    ax.bar(lows + width / 2, heights, width * 0.9, bottom=bottom, color=COLOURS[outcome],
+                           label=outcome)
+                    bottom += heights
+            ax.yaxis.set_major_locator(MaxNLocator(integer=True))
+            ax.grid(True, alpha=0.4)
+            ax.set_xlabel(xlabel)
+            ax.set_ylabel(f"{'loaded' if loaded else 'unloaded'} pallets: picks")
+            if bands:
+                ax.legend(loc="best", fontsize="small")
+    figure.suptitle("outcomes by the pallet's start pose and load")
+    return _save(figure, path)
+
+
+def _height_rows(results: list[Mapping[str, Any]]) -> list[tuple[str, str, str, str]]:
+    """The table of :func:`_markdown`'s outcomes by height: band, then inserted / picks of unloaded, loaded, all."""
+    width = BANDS["z_mm"][0]
+    by_load = outcomes_by_band(results, "z_mm", width)
+    rows = []
+    for low in sorted(set(by_load[False]) | set(by_load[True])):
+        cells = [by_load[loaded].get(low, Counter()) for loaded in (False, True)]
+        cells.append(cells[0] + cells[1])
+        rows.append((f"{low:+.0f} to {low + width:+.0f}",
+                     *(f"{c['inserted']} / {c.total()}" + (f" ({c['inserted'] / c.total():.0%})" if c.total() else "")
+                       for c in cells)))
+    return rows
 
 
 def _cycle_plot(results: list[Mapping[str, Any]], path: Path) -> str:
@@ -299,6 +370,15 @@ def _markdown(folder: Path, meta: Mapping[str, Any], results: list[dict[str, Any
                              "confirmed where the plan expects it, at the pitch measured before")
     lines += _measured_again(results, "exposure_changes", "Picks measured again with a shorter exposure (clipped "
                              "highlights beside the deck's edges)")
+    lines += ["## Outcomes by pallet height and load", ""]
+    heights = _height_rows(results)
+    if heights:
+        lines += ["Inserted of the picks, by the pallet's height at the start: its front face's centre at pocket "
+                  "mid-height above the point between the fork tips (fork frame z), unloaded and loaded.", ""]
+        lines += _table(["height [mm]", "unloaded", "loaded", "all"], heights)
+    else:
+        lines += ["No result carries its scene.", ""]
+    lines += [f"![outcomes by scene]({plots['outcomes']})", ""]
     failed = [r for r in results if not r["ok"]]
     for outcome in ("refused", "faulted", "collided"):
         reasons = Counter(reason_class(r.get("reason")) for r in failed if r["outcome"] == outcome)
@@ -349,6 +429,7 @@ def write_report(folder: Path) -> dict[str, Any]:
         "error": _error_plot(measurement_errors(results), folder / "measurement_error.png"),
         "clearance": _clearance_plot(results, folder / "clearance.png"),
         "cycle": _cycle_plot(results, folder / "cycle_times.png"),
+        "outcomes": _outcome_plot(results, folder / "outcomes_by_scene.png"),
     }
     report = folder / REPORT_FILE
     report.write_text(_markdown(folder, meta, results, plots))

@@ -13,7 +13,7 @@ import pytest
 
 from agf.cli import EXIT_OK, EXIT_USAGE, main
 from agf.errors import InputError
-from agf.report import RESULTS_FILE, read_results, write_report
+from agf.report import RESULTS_FILE, outcomes_by_band, read_results, write_report
 from drivers.sim.campaign import PoolBackend, ResultsFile, run_campaign
 from tests.unit.campaign_picks import light_pick
 
@@ -109,7 +109,7 @@ def test_failure_rows_link_their_recorder_file_when_there_is_one(folder):
 def test_the_plots_are_written_and_linked(folder):
     result = write_report(folder)
     markdown = (folder / "report.md").read_text()
-    assert len(result["plots"]) == 3
+    assert len(result["plots"]) == 4
     for path in result["plots"]:
         image = cv2.imread(path)
         assert image is not None and image.shape[0] > 300 and image.std() > 10
@@ -165,3 +165,32 @@ def test_the_report_counts_accepted_measurements_outside_the_accuracy_bounds(fol
     assert count >= len(outside)
     markdown = (folder / "report.md").read_text()
     assert f"**{count}**, in runs {', '.join(map(str, outside))}." in markdown
+
+
+def test_outcomes_by_band_put_each_pick_in_the_band_of_its_start_pose(folder):
+    records = read_results(folder)
+    counts = outcomes_by_band(records, "z_mm", 100.0)
+    assert sum(c.total() for bands in counts.values() for c in bands.values()) == len(records)
+    for record in records:
+        z, loaded = record["scene"]["pallet_in_fork"]["z_mm"], record["scene"]["loaded"]
+        [low] = [low for low in counts[loaded] if low <= z < low + 100.0]
+        assert low % 100.0 == 0.0
+    # the light pick refuses a pallet more than 250 mm below the forks, and only there
+    refused = [low for bands in counts.values() for low, c in bands.items() if c["refused"]]
+    assert refused and max(refused) < -200.0
+    with pytest.raises(ValueError, match="band width must be positive"):
+        outcomes_by_band(records, "z_mm", 0.0)
+
+
+def test_the_report_tables_the_inserted_share_by_pallet_height_and_load(folder):
+    write_report(folder)
+    rows = table_rows((folder / "report.md").read_text(), "Outcomes by pallet height and load")
+    records = read_results(folder)
+    assert rows and [row[0] for row in rows] == sorted((row[0] for row in rows), key=lambda b: float(b.split()[0]))
+    for band, *cells in rows:
+        low = float(band.split()[0])
+        mine = [r for r in records if low <= r["scene"]["pallet_in_fork"]["z_mm"] < low + 100.0]
+        for cell, chosen in zip(cells, ([r for r in mine if not r["scene"]["loaded"]],
+                                        [r for r in mine if r["scene"]["loaded"]], mine), strict=True):
+            inserted = sum(r["outcome"] == "inserted" for r in chosen)
+            assert cell.split(" (")[0] == f"{inserted} / {len(chosen)}"
