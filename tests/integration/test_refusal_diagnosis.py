@@ -1,0 +1,70 @@
+"""tools/refusal_diagnosis: a campaign's picks drawn and measured again at their truth."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from importlib.machinery import SourceFileLoader
+
+import pytest
+
+from agf.paths import repo_path
+from agf.report import CAMPAIGN_FILE
+from drivers.sim.campaign import ResultsFile
+
+SEED, INSERTED, REFUSED = 4242, 4, 20  # unloaded picks of `agf simulate --random 30 --seed 4242` (docs/campaigns.md)
+
+
+@pytest.fixture(scope="module")
+def tool():
+    loader = SourceFileLoader("refusal_diagnosis", str(repo_path("tools/refusal_diagnosis")))
+    module = importlib.util.module_from_spec(importlib.util.spec_from_loader(loader.name, loader))
+    loader.exec_module(module)
+    return module
+
+
+@pytest.fixture
+def folder(tmp_path):
+    (tmp_path / CAMPAIGN_FILE).write_text(json.dumps({"scene": None, "random": 30, "seed": SEED}))
+    results = ResultsFile(tmp_path)
+    for run, outcome in ((INSERTED, "inserted"), (REFUSED, "refused")):
+        results.append({"run": run, "ok": outcome == "inserted", "outcome": outcome, "collision": False})
+    return tmp_path
+
+
+def test_an_inserted_pick_drawn_again_measures_within_the_bounds_at_its_truth(tool, folder, capsys):
+    """The frame and truth the tool draws are the campaign's: a pick that inserted measures within the bounds with
+    its true pose as the prior, and its deck edges at the true pose give its pitch (a scene drawn with other forks
+    or from another seed would not)."""
+    assert tool.main([str(folder), "--runs", str(INSERTED), "--json"]) == 0
+    [record] = json.loads(capsys.readouterr().out)
+    assert record["run"] == INSERTED and not record["loaded"]
+    assert record["with_true_prior"] == "measured within the bounds", record
+    grey = record["edges_at_truth_grey"]
+    assert grey["finding"] == "valid" and abs(grey["pitch_error_deg"]) <= 0.1
+
+
+def test_only_the_refused_picks_are_diagnosed_unless_all_are_asked_for(tool, folder, monkeypatch, capsys):
+    diagnosed = []
+
+    def record(config, seed, run):
+        diagnosed.append((seed, run))
+        return {"run": run, "loaded": False, "z_mm": 0, "with_true_prior": "refused: x",
+                **{f"edges_at_truth_{n}": {"finding": "edges not found", "ratio": 0.0, "pitch_error_deg": None,
+                                           "candidates_deg": []} for n in ("grey", "colour")}}
+
+    monkeypatch.setattr(tool, "diagnose", record)
+    assert tool.main([str(folder)]) == 0
+    assert diagnosed == [(SEED, REFUSED)]
+    assert "1 picks diagnosed" in capsys.readouterr().out
+    diagnosed.clear()
+    assert tool.main([str(folder), "--all"]) == 0
+    assert diagnosed == [(SEED, INSERTED), (SEED, REFUSED)]
+
+
+def test_a_run_with_no_result_or_a_campaign_of_one_scene_is_refused_with_the_reason(tool, folder, capsys):
+    assert tool.main([str(folder), "--runs", "99"]) == 2
+    assert "no result for run(s) 99" in capsys.readouterr().err
+    (folder / CAMPAIGN_FILE).write_text(json.dumps({"scene": "configs/scenes/pick.yaml", "random": None}))
+    assert tool.main([str(folder)]) == 2
+    assert "not a random campaign" in capsys.readouterr().err
