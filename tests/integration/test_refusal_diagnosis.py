@@ -47,7 +47,8 @@ def test_an_inserted_pick_drawn_again_measures_within_the_bounds_at_its_truth(to
 def test_only_the_refused_picks_are_diagnosed_unless_all_are_asked_for(tool, folder, monkeypatch, capsys):
     diagnosed = []
 
-    def record(config, seed, run):
+    def record(config, base, seed, run):
+        assert base == repo_path("configs/scenes/pick.yaml")  # the scene agf simulate draws random picks from
         diagnosed.append((seed, run))
         return {"run": run, "loaded": False, "z_mm": 0, "with_true_prior": "refused: x",
                 **{f"edges_at_truth_{n}": {"finding": "edges not found", "ratio": 0.0, "pitch_error_deg": None,
