@@ -507,14 +507,15 @@ def _checked_by_wide_face(
 
 def _checked_by_load_top(pair: PitchEvidence, top: PitchEvidence | None, config: PitchConfig) -> PitchEvidence:
     """A valid pair of load edges that no line on the load's face confirmed, refused where the load's ``top`` face
-    disagrees with it (:func:`load_top_disagrees`); else ``pair`` as it is. Two edges alone follow a rival line
-    as easily as the load's outline: a loaded pallet pitched 3.32 deg, seen from 150 mm below campaign seed 7 pick
-    29's start, was accepted 0.15 deg off from its edges alone, its top face at 3.26 deg (its face's lines, 5-6 of
-    them, found at some poses and not at others)."""
+    disagrees with it (:func:`load_top_disagrees`); else ``pair`` as it is; either carries ``top``. Two edges alone
+    follow a rival line as easily as the load's outline: a loaded pallet pitched 3.32 deg, seen from 150 mm below
+    campaign seed 7 pick 29's start, was accepted 0.15 deg off from its edges alone, its top face at 3.26 deg (its
+    face's lines, 5-6 of them, found at some poses and not at others)."""
+    pair = dataclasses.replace(pair, top=top)
     if not load_top_disagrees(pair.pitch, top, config):
-        return dataclasses.replace(pair, top=top)
-    return _refused(dataclasses.replace(pair, top=top), f"the load's edges give a pitch of "
-                    f"{math.degrees(pair.pitch):.2f} deg, its top face {math.degrees(top.pitch):.2f} deg")
+        return pair
+    return _refused(pair, f"the load's edges give a pitch of {math.degrees(pair.pitch):.2f} deg, its top face "
+                          f"{math.degrees(top.pitch):.2f} deg")
 
 
 def load_top_disagrees(pitch: float, top: PitchEvidence | None, config: PitchConfig) -> bool:
@@ -549,23 +550,24 @@ def _confirmed_by_load_top(
     """A loaded hypothesis the edges and face could not settle, given the pitch where the load's top face
     (:func:`load_top_evidence`, fitted to :attr:`PitchConfig.top_max_sigma`) agrees within
     :attr:`PitchConfig.face_agreement` with the edges' pitch or with a face that is sure enough (their mean); else
-    ``refused`` as it is. Two independent cues must agree: the top face alone errs as the deck edges do, and the
-    pitches of the edges paired with a rival line are not offered to it (among several, one agrees by chance: a
-    load accepted 0.16 deg off so, campaign seed 7 pick 134)."""
+    ``refused`` as it is; either carries the top searched, if any. Two independent cues must agree: the top face
+    alone errs as the deck edges do, and the pitches of the edges paired with a rival line are not offered to it
+    (among several, one agrees by chance: a load accepted 0.16 deg off so, campaign seed 7 pick 134)."""
     cues = list(refused.candidates[:1])
     if face is not None and face.sigma <= config.face_max_sigma:
         cues.append(face.pitch)
     if not cues:
         return refused
     top = load_top_evidence(gray, camera, camera_in_fork, pallet, pallet_in_fork, config, colour=colour)
+    refused = dataclasses.replace(refused, top=top)
     if top is None or not top.valid or top.sigma > config.top_max_sigma:
-        return dataclasses.replace(refused, top=top)
+        return refused
     nearest = min(cues, key=lambda c: abs(c - top.pitch))
     miss = abs(nearest - top.pitch)
     if miss > config.face_agreement:
-        return dataclasses.replace(refused, top=top)
-    return _loaded_at(dataclasses.replace(refused, top=top), (top.pitch + nearest) / 2, math.hypot(top.sigma, miss / 2),
-                      camera_in_fork, pallet_in_fork)
+        return refused
+    return _loaded_at(refused, (top.pitch + nearest) / 2, math.hypot(top.sigma, miss / 2), camera_in_fork,
+                      pallet_in_fork)
 
 
 def load_top_evidence(
