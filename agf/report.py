@@ -28,6 +28,7 @@ from agf.errors import OTHER_SEARCHES, InputError
 from agf.vision.accuracy import BOUNDS, within_bounds
 
 CAMPAIGN_FILE, RESULTS_FILE, REPORT_FILE = "campaign.json", "results.jsonl", "report.md"
+MEASURING = "measuring: "  # the prefix of a pick's reason when its first measurement (no plan yet) was refused
 OUTCOMES = ("inserted", "refused", "faulted", "collided")
 POSE_KEYS = ("x_mm", "y_mm", "z_mm", "pitch_deg", "yaw_deg")
 # Per-pick keys every result carries (type checked); the others are optional: a pick that crashed or
@@ -44,6 +45,7 @@ OPTIONAL = {
     "scene": dict,
     "log": (str, type(None)),
     "viewing_moves": int,
+    "viewing_reasons": list,
     "withdrawals": int,
     "confirmations": int,
     "exposure_changes": int,
@@ -148,6 +150,26 @@ def reason_class(reason: str | None) -> str:
     search's reason only (what the other searches found made every refusal a kind of its own)."""
     first = (reason or "(no reason given)").split(OTHER_SEARCHES, 1)[0]
     return re.sub(r"(?<![\w.+])[-+]?\d+(\.\d+)?(?!\w)", "#", first)  # "+-0.07" keeps its "+-"
+
+
+def first_refusals(results: Iterable[Mapping[str, Any]]) -> dict[str, Counter]:
+    """The outcomes of the picks whose first measurement was refused, per kind (:func:`reason_class`) of that
+    refusal: the reason of the first viewing move (``viewing_reasons``), or the pick's own where it ended on its first
+    frame, refused while measuring with no viewing move. The final reason of a pick that moved is its last frame's;
+    this is what the first look at the pallet failed on, and the outcomes say how often looking again helped. Only
+    results that carry ``viewing_reasons`` count (campaigns since session 57)."""
+    kinds: dict[str, Counter] = {}
+    for r in results:
+        if "viewing_reasons" not in r:
+            continue
+        if r["viewing_reasons"]:
+            first = r["viewing_reasons"][0]
+        elif r["outcome"] == "refused" and (r.get("reason") or "").startswith(MEASURING):
+            first = r["reason"].removeprefix(MEASURING)
+        else:
+            continue
+        kinds.setdefault(reason_class(first), Counter())[r["outcome"]] += 1
+    return dict(sorted(kinds.items(), key=lambda kind: -kind[1].total()))
 
 
 def outcomes_by_band(results: Iterable[Mapping[str, Any]], key: str, width: float) -> dict[bool, dict[float, Counter]]:
@@ -385,6 +407,13 @@ def _markdown(folder: Path, meta: Mapping[str, Any], results: list[dict[str, Any
         if reasons:
             lines += [f"## {outcome.capitalize()}: reasons", ""]
             lines += _table(["reason", "picks"], reasons.most_common())
+    firsts = first_refusals(results)
+    if firsts:
+        lines += ["## First measurement refused: reasons", ""]
+        lines += ["Picks whose first frame was refused, by why (a pick's own reason is its last frame's), and how many "
+                  "inserted in the end, after viewing moves or shorter exposures.", ""]
+        lines += _table(["reason", "picks", "inserted in the end"],
+                        [(kind, c.total(), c["inserted"]) for kind, c in firsts.items()])
     lines += ["## Failures", ""]
     if failed:
         rows = [

@@ -361,8 +361,8 @@ class _Frame:
                                         self.config.pitch, colour=self.colour)
         if load_top_disagrees(chosen.pitch, top, self.config.pitch):
             raise MeasurementError(
-                f"no trustworthy pitch: the load's face and edges give a pitch of {math.degrees(chosen.pitch):.2f} "
-                f"deg, its top face {math.degrees(top.pitch):.2f} deg (at most "
+                f"no trustworthy pitch: the load's front (its edges, the lines on its face or both) gives a pitch of "
+                f"{math.degrees(chosen.pitch):.2f} deg, its top face {math.degrees(top.pitch):.2f} deg (at most "
                 f"{math.degrees(self.config.pitch.face_agreement):.2f} apart); refusing rather than guessing"
             )
 

@@ -323,6 +323,7 @@ def pick_summary(result: PickResult, world: SimulatedWorld) -> dict[str, Any]:
         "cycle_s": cycle,
         "wall_s": sum(result.wall_durations.values()),
         "viewing_moves": len(result.views),
+        "viewing_reasons": list(result.views),
         "withdrawals": len(result.withdrawals),
         "confirmations": len(result.confirmations),
         "exposure_changes": len(result.exposures),

@@ -184,7 +184,7 @@ def test_forks_hiding_the_pallet_move_to_a_viewing_pose_and_the_pick_inserts():
     start, result, summary, viewing = viewed_pick(scene)
     assert result.ok, result.reason
     assert len(result.views) == 1 and "the forks hide" in result.views[0]
-    assert summary["viewing_moves"] == 1 and not summary["collision"]
+    assert summary["viewing_moves"] == 1 and summary["viewing_reasons"] == result.views and not summary["collision"]
     # Lift only, level with the pockets: the pallet stood 292 mm below the forks. The rough pose of a
     # pallet the forks hide errs along the camera's steep line of sight (27 mm at 1.6 m: 16 mm in reach,
     # 22 mm in height since 931c02c): the move must land within a third of the JIS T11's 90 mm pocket.

@@ -15,7 +15,8 @@ BASE = load_scene(repo_path("configs/scenes/pick.yaml"))
 
 def light_pick(seed: int, index: int, interrupt_at: int | None = None) -> dict:
     """Refused when the pallet is more than 250 mm below the forks (they hide its pocket edges), faulted
-    on every 7th run, else inserted. ``interrupt_at``: this run stops the campaign as Ctrl-C does."""
+    on every 7th run, else inserted; a viewing move where it is more than 200 mm below, but for every other
+    refused pick. ``interrupt_at``: this run stops the campaign as Ctrl-C does."""
     if index == interrupt_at:
         raise KeyboardInterrupt
     scene = campaign_scene(BASE, seed, index)
@@ -28,6 +29,9 @@ def light_pick(seed: int, index: int, interrupt_at: int | None = None) -> dict:
         "faulted": "aligning: drive fault on reach: over-temperature",
         "inserted": None,
     }[outcome]
+    # a viewing move after a first frame refused for its face, except for every other refused pick, which ends there
+    views = [f"no convincing pallet front face: similarity 0.4{index % 10} < 0.50"] if truth["z_mm"] < -200 and not (
+        outcome == "refused" and index % 2) else []
     return {
         "ok": outcome == "inserted",
         "outcome": outcome,
@@ -40,7 +44,8 @@ def light_pick(seed: int, index: int, interrupt_at: int | None = None) -> dict:
         "measured": [measured] if outcome != "refused" else [],
         "truth": [truth] if outcome != "refused" else [],
         "scene": scene_summary(scene),
-        "viewing_moves": int(truth["z_mm"] < -200),
+        "viewing_moves": len(views),
+        "viewing_reasons": views,
         "withdrawals": int(index % 5 == 0),
         "confirmations": int(index % 4 == 0),
         "exposure_changes": int(index % 7 == 0),

@@ -13,7 +13,7 @@ import pytest
 
 from agf.cli import EXIT_OK, EXIT_USAGE, main
 from agf.errors import InputError
-from agf.report import RESULTS_FILE, outcomes_by_band, read_results, write_report
+from agf.report import RESULTS_FILE, first_refusals, outcomes_by_band, read_results, write_report
 from drivers.sim.campaign import PoolBackend, ResultsFile, run_campaign
 from tests.unit.campaign_picks import light_pick
 
@@ -80,6 +80,23 @@ def test_the_report_counts_outcomes_and_tables_reasons(folder):
     assert result["exposure_changes"] == len(darker) > 0
     failures = table_rows(markdown, "Failures")
     assert sorted(int(row[0]) for row in failures) == [r["run"] for r in records if not r["ok"]]
+
+
+def test_first_refusals_count_the_first_frame_s_reason_and_the_pick_s_outcome(folder):
+    """A pick that moved to look again ends with its last frame's reason; the report's table of first refusals counts
+    the first frame's (its first viewing move's), or the pick's own where it ended on its first frame."""
+    write_report(folder)
+    records = read_results(folder)
+    rows = {row[0]: (int(row[1]), int(row[2])) for row in table_rows((folder / "report.md").read_text(),
+                                                                      "First measurement refused: reasons")}
+    viewed = [r for r in records if r["viewing_reasons"]]
+    ended = [r for r in records if r["outcome"] == "refused" and not r["viewing_reasons"]]
+    assert viewed and ended, "the light pick's rules give both on this seed"
+    assert rows == {
+        "no convincing pallet front face: similarity # < #": (len(viewed), sum(r["ok"] for r in viewed)),
+        "the forks hide #% of the pallet's pocket edges from the camera": (len(ended), 0),
+    }
+    assert first_refusals([{k: v for k, v in r.items() if k != "viewing_reasons"} for r in records]) == {}
 
 
 def test_refused_measurements_count_by_their_first_search_s_reason():
