@@ -211,6 +211,9 @@ class PickResult:
     was confirmed at the pitch measured before instead (its own measurement's refusal), ``exposures`` why the
     exposure was shortened (clipped highlights). ``refused``: the pick ended on a refusal (a measurement
     refused, or two that contradict each other), not a fault.
+
+    A ``log`` row holds the clock's time ``t`` (s), the motion's own time ``motion_t`` (s since the motion's
+    start, the time its set-point was taken at), the ``state``, and the axes' ``setpoint`` and ``actual``.
     """
 
     ok: bool
@@ -583,7 +586,8 @@ class PickController:
             feedback = {name: axis.feedback() for name, axis in self.axes.items()}
             self.recorder.cycle(state, setpoints, feedback)
             positions = {name: f.position for name, f in feedback.items()}
-            result.log.append({"t": now, "state": state, "setpoint": dict(setpoints), "actual": positions})
+            result.log.append({"t": now, "motion_t": now - t0, "state": state, "setpoint": dict(setpoints),
+                               "actual": positions})
             if self.on_cycle is not None:
                 self.on_cycle(positions)
             if now - t0 >= duration and all(
