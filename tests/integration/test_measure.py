@@ -14,10 +14,11 @@ import pytest
 
 from agf.camera import load_camera
 from agf.config import load_config
-from agf.errors import MeasurementError
+from agf.errors import MeasurementError, OverexposedError
 from agf.pallets import load_pallets
 from agf.paths import DEFAULT_CONFIG
 from agf.scene import load_scene
+from agf.vision import measure as measure_module
 from agf.vision.measure import measure_pallet
 from tests.integration.conftest import SCENES, campaign_first_frame, scene_files
 
@@ -555,3 +556,24 @@ def test_regression_a_face_agreeing_with_two_of_an_ambiguous_pairs_pitches_does_
     evidence = loaded_evidence(grey_from_bgr(image), load_camera(scene.camera), scene.camera_in_fork,
                                CATALOGUE[scene.pallet.type], scene.pallet.in_fork, colour=image)
     assert not evidence.valid and "agrees with more than one of the edges' pitches" in evidence.note, evidence.note
+
+
+@pytest.mark.parametrize(("pick", "searches"), [(115, 1), (44, 3)])
+def test_a_search_refused_for_clipped_highlights_ends_the_searches(pick, searches, monkeypatch):
+    """Campaign seed 7, first frames: pick 115's deck is clipped beside its edges in the first search, pick 44's
+    (loaded) in the third. The searches after it read the same clipped pixels (none of 62 such frames measured in
+    one), so the refusal, an OverexposedError whose remedy is a shorter exposure, comes at once."""
+    scene, image = campaign_first_frame(7, pick)
+    pallet = load_pallets(CONFIG.vision.pallets)[scene.pallet.type]
+    calls = []
+    searched = measure_module._Attempt.measured
+
+    def counted(attempt, assumed):
+        calls.append(assumed)
+        return searched(attempt, assumed)
+
+    monkeypatch.setattr(measure_module._Attempt, "measured", counted)
+    with pytest.raises(OverexposedError) as refused:
+        measure_pallet(image, load_camera(CONFIG.vision.camera), scene.camera_in_fork, pallet, CONFIG.vision.search,
+                       forks=CONFIG.forks)
+    assert len(calls) == searches, refused.value
