@@ -579,18 +579,19 @@ class PickController:
             if now > deadline:
                 raise TimeoutError(f"motion not finished within {self.config.timeouts[state]} s")
             self._check_alarm()
-            setpoints = at(now - t0)
+            elapsed = now - t0  # the motion's own time
+            setpoints = at(elapsed)
             if self.streamer is None:
                 for name, value in setpoints.items():
                     self.axes[name].send_setpoint(value)
             feedback = {name: axis.feedback() for name, axis in self.axes.items()}
             self.recorder.cycle(state, setpoints, feedback)
             positions = {name: f.position for name, f in feedback.items()}
-            result.log.append({"t": now, "motion_t": now - t0, "state": state, "setpoint": dict(setpoints),
+            result.log.append({"t": now, "motion_t": elapsed, "state": state, "setpoint": dict(setpoints),
                                "actual": positions})
             if self.on_cycle is not None:
                 self.on_cycle(positions)
-            if now - t0 >= duration and all(
+            if elapsed >= duration and all(
                 abs(positions[n] - v) <= self.config.arrive_tolerance for n, v in target.items()
             ):
                 return

@@ -246,7 +246,7 @@ def test_a_refusal_carries_its_rough_pose_only_when_the_image_confirms_it(pick, 
     frames: pick 60's pose was within 2 mm and its face edges agreed 95 % (refused for its pitch); pick 34's
     was 223 mm off along the line of sight, agreeing 18 %, and a move by it is a move on a guess."""
     scene, image = campaign_first_frame(7, pick)
-    pallet = load_pallets(CONFIG.vision.pallets)[scene.pallet.type]
+    pallet = CATALOGUE[scene.pallet.type]
     with pytest.raises(MeasurementError) as refused:
         measure_pallet(image, load_camera(CONFIG.vision.camera), scene.camera_in_fork, pallet, CONFIG.vision.search,
                        forks=CONFIG.forks)
@@ -564,7 +564,7 @@ def test_a_search_refused_for_clipped_highlights_ends_the_searches(pick, searche
     (loaded) in the third. The searches after it read the same clipped pixels (none of 62 such frames measured in
     one), so the refusal, an OverexposedError whose remedy is a shorter exposure, comes at once."""
     scene, image = campaign_first_frame(7, pick)
-    pallet = load_pallets(CONFIG.vision.pallets)[scene.pallet.type]
+    pallet = CATALOGUE[scene.pallet.type]
     calls = []
     searched = measure_module._Attempt.measured
 
