@@ -21,6 +21,7 @@ from typing import Any
 
 from agf.config import Config, load_config
 from agf.errors import AgfError, ConfigError, InputError, NotAvailableError
+from agf.pallets import load_pallets
 from agf.paths import DEFAULT_CONFIG
 from agf.plugins import load_object
 
@@ -92,6 +93,9 @@ def _cmd_simulate(args: argparse.Namespace, config: Config) -> dict[str, Any]:
         raise InputError("--resume: give --out CAMPAIGN_DIR, the folder of the campaign to finish")
     if args.only is not None and (args.random is None or not 0 <= args.only < args.random):
         raise InputError(f"--only: expected a pick number 0..N-1 of --random N, got {args.only}")
+    types = _pallet_types(args.pallet_types, config) if args.pallet_types is not None else ()
+    if types and args.random is None:
+        raise InputError("--pallet-types: the pallets random picks are drawn from; give --random N too")
     folder = None if args.out else _campaign_folder(args)
     try:
         return _plugin(config, "simulate")(
@@ -107,11 +111,24 @@ def _cmd_simulate(args: argparse.Namespace, config: Config) -> dict[str, Any]:
             resume=args.resume,
             indices=None if args.only is None else [args.only],
             progress=not args.json,
+            **({"pallet_types": types} if types else {}),
         )
     except BaseException:
         if folder is not None and not any(folder.iterdir()):
             folder.rmdir()  # a campaign that never started (no Ray, a bad config) leaves no folder behind
         raise
+
+
+def _pallet_types(text: str, config: Config) -> tuple[str, ...]:
+    """``--pallet-types A,B,...``: catalogue names, each once, or InputError naming what is not in the catalogue."""
+    names = tuple(dict.fromkeys(name.strip() for name in text.split(",") if name.strip()))
+    known = load_pallets(config.vision.pallets)
+    unknown = [name for name in names if name not in known]
+    if not names or unknown:
+        raise InputError(f"--pallet-types: expected names from the pallet catalogue {config.vision.pallets} "
+                         f"({', '.join(sorted(known))}), separated by commas; got {text!r}"
+                         + (f" ({', '.join(unknown)} not in it)" if unknown else ""))
+    return names
 
 
 def _campaign_folder(args: argparse.Namespace) -> Path:
@@ -228,6 +245,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--resume", action="store_true", help="finish the campaign in --out: run only missing picks")
     p.add_argument("--only", type=int, metavar="K",
                    help="run only pick K (0-based) of --random N --seed S, exactly as in the whole campaign")
+    p.add_argument("--pallet-types", metavar="TYPE[,TYPE...]",
+                   help="draw each random pick's pallet from these catalogue types (default: the scene's, jis-t11)")
     p.set_defaults(handler=_cmd_simulate)
 
     p = sub.add_parser("replay", parents=[common], help="re-run the measurement on a pick's logged frames")

@@ -5,7 +5,8 @@ finished pick (the simulated world's ``pick_summary`` with its run index). The r
 refused, faulted and collided picks, tables the refusal and fault reasons, plots the measurement error
 against the pallet's pitch, height, yaw and the light, the clearance distribution and the cycle times,
 counts the outcomes by the pallet's height and pitch at the start and its load (where the controller picks
-and where it refuses), and links every failure to its pick's recorder file when the pick wrote one.
+and where it refuses) and, where the campaign drew more than one, by pallet type, and links every failure
+to its pick's recorder file when the pick wrote one.
 """
 
 from __future__ import annotations
@@ -140,8 +141,26 @@ def campaign_figures(results: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
         "measurements_outside_bounds": sum(not within_bounds(e["error"]) for e in measurement_errors(results)),
         "min_clearance_mm": min(clearances) if clearances else None,
         "median_cycle_s": statistics.median(cycles) if cycles else None,
+        "by_pallet_type": by_pallet_type(results),
         "failures": failures,
     }
+
+
+def by_pallet_type(results: Iterable[Mapping[str, Any]]) -> dict[str, dict[str, int]]:
+    """Per pallet type of the picks' scenes (``agf simulate --pallet-types``): ``{type: {"runs", "inserted",
+    "collisions", "measurements_outside_bounds"}}``, types in name order. Picks without a scene (refused before
+    the world existed) are left out."""
+    results = [r for r in results if r.get("scene")]
+    outside = Counter(e["scene"]["pallet_type"] for e in measurement_errors(results) if not within_bounds(e["error"]))
+    counts: dict[str, dict[str, int]] = {}
+    for r in sorted(results, key=lambda r: r["scene"]["pallet_type"]):
+        kind = r["scene"]["pallet_type"]
+        row = counts.setdefault(kind, {"runs": 0, "inserted": 0, "collisions": 0,
+                                       "measurements_outside_bounds": outside[kind]})
+        row["runs"] += 1
+        row["inserted"] += r["outcome"] == "inserted"
+        row["collisions"] += bool(r["collision"])
+    return counts
 
 
 def reason_class(reason: str | None) -> str:
@@ -401,6 +420,12 @@ def _markdown(folder: Path, meta: Mapping[str, Any], results: list[dict[str, Any
     else:
         lines += ["No result carries its scene.", ""]
     lines += [f"![outcomes by scene]({plots['outcomes']})", ""]
+    kinds = figures["by_pallet_type"]
+    if len(kinds) > 1:
+        lines += ["## Outcomes by pallet type", ""]
+        lines += _table(["pallet type", "picks", "inserted", "collided", "measurements outside the bounds"],
+                        [(kind, c["runs"], f"{c['inserted']} ({c['inserted'] / c['runs']:.0%})", c["collisions"],
+                          c["measurements_outside_bounds"]) for kind, c in kinds.items()])
     failed = [r for r in results if not r["ok"]]
     for outcome in ("refused", "faulted", "collided"):
         reasons = Counter(reason_class(r.get("reason")) for r in failed if r["outcome"] == outcome)

@@ -211,7 +211,9 @@ def _open_folder(folder: Path, identity: dict[str, Any], resume: bool) -> dict[i
             recorded = json.loads(meta.read_text())
         except json.JSONDecodeError as exc:
             raise InputError(f"--resume: {meta}: not JSON ({exc.msg})") from exc
-        differs = {k: (recorded.get(k), v) for k, v in identity.items() if recorded.get(k) != v}
+        # Keys either side holds: a key only the folder records (a campaign of several pallet types) differs too.
+        keys = dict.fromkeys([*identity, *(k for k in recorded if k != "created_utc")])
+        differs = {k: (recorded.get(k), identity.get(k)) for k in keys if recorded.get(k) != identity.get(k)}
         if differs:
             detail = ", ".join(f"{k}: {a!r} there, {b!r} now" for k, (a, b) in differs.items())
             raise InputError(f"--resume: {folder} holds another campaign ({detail})")

@@ -57,6 +57,8 @@ from drivers.sim.render import catalogued, exposed, support_box
 START = {"lift": 0.6, "reach": 0.15, "tilt": 0.0}
 SUPPORT_GAP = 0.02  # m: a campaign scene's tines start at least this far from the slab the pallet stands on
 FORKS = ForkGeometry()  # the paper's, as agf.yaml configures them
+LOAD_INSET = 0.05  # m: a random load's sides and back inside the pallet's (load_footprint)
+_TYPE_STREAM = 1  # the third word of the seed of a campaign pick's pallet type (campaign_scene)
 
 
 class RenderedCamera(FrameSource):
@@ -335,10 +337,13 @@ def pick_summary(result: PickResult, world: SimulatedWorld) -> dict[str, Any]:
     }
 
 
-def _pick(config: Config, plots: Path | None, base: Scene, seed: int, random: bool, index: int) -> dict[str, Any]:
+def _pick(
+    config: Config, plots: Path | None, base: Scene, seed: int, random: bool, pallet_types: tuple[str, ...], index: int
+) -> dict[str, Any]:
     """Pick ``index`` of a campaign in a world of its own, summarised by :func:`pick_summary`; its plots in
-    ``plots``/pick-NNN when ``plots`` is given. ``random``: the scene is :func:`campaign_scene`, else ``base``."""
-    scene = campaign_scene(base, seed, index, config.forks) if random else base
+    ``plots``/pick-NNN when ``plots`` is given. ``random``: the scene is :func:`campaign_scene` (its pallet drawn
+    from ``pallet_types``, where given), else ``base``."""
+    scene = campaign_scene(base, seed, index, config.forks, pallet_types) if random else base
     try:
         clock = world_clock(config)  # the bus's, for the log's CAN tap too
         with (
@@ -375,11 +380,12 @@ def run_command(config: Config, *, plots: str | None = None, progress: bool = Tr
 
 
 def random_scene(rng: np.random.Generator, base: Scene, forks: ForkGeometry = FORKS) -> Scene:
-    """A random pick: pitch -5..5 deg, fork heights of the paper and more, loaded or not, yaw +-3 deg,
-    stand-off 150..400 mm, and a random look (textures, lights, sensor) drawn from its seed. A look whose truck
-    bed or dock would hold the tips of the tines (``forks``) is drawn again from the next seed: the slab reaches
-    up to 0.35 m before the pallet's face, and with the pallet above the forks 10 % of the scenes started with
-    the tines inside it (campaign seed 7: 30 of its first 300 picks)."""
+    """A random pick of ``base``'s pallet type: pitch -5..5 deg, fork heights of the paper and more, loaded or not
+    (a load :func:`load_footprint` long and wide), yaw +-3 deg, stand-off 150..400 mm, and a random look (textures,
+    lights, sensor) drawn from its seed. A look whose truck bed or dock would hold the tips of the tines (``forks``)
+    is drawn again from the next seed: the slab reaches up to 0.35 m before the pallet's face, and with the pallet
+    above the forks 10 % of the scenes started with the tines inside it (campaign seed 7: 30 of its first 300
+    picks)."""
     pose = Transform.from_euler(
         rng.uniform(0.15, 0.4),
         rng.uniform(-0.03, 0.03),
@@ -388,7 +394,7 @@ def random_scene(rng: np.random.Generator, base: Scene, forks: ForkGeometry = FO
         math.radians(rng.uniform(-5, 5)),
         math.radians(rng.uniform(-3, 3)),
     )
-    load = Load((1.0, 1.0, float(rng.uniform(0.5, 1.0)))) if rng.random() < 0.5 else None
+    load = Load((*load_footprint(base.pallet.type), float(rng.uniform(0.5, 1.0)))) if rng.random() < 0.5 else None
     environment = Environment(
         floor=str(rng.choice(["floor", "truck-bed"])),
         clutter_verticals=int(rng.integers(0, 8)),
@@ -416,9 +422,25 @@ def support_gap(scene: Scene, forks: ForkGeometry) -> float:
     return float(signed_distances(scene.pallet.in_fork.inverse().apply(tips), slab[None]).min())
 
 
-def campaign_scene(base: Scene, seed: int, index: int, forks: ForkGeometry = FORKS) -> Scene:
+def load_footprint(pallet: str) -> tuple[float, float]:
+    """The length and width (m) of a random pick's load on a ``pallet`` of the catalogue: 50 mm inside its sides
+    and back, as cartons are stacked (1.0 x 1.0 m on the paper's JIS T11 pallet, 1100 x 1100 mm)."""
+    kind = catalogued(pallet)
+    return round(kind.length - 2 * LOAD_INSET, 6), round(kind.width - 2 * LOAD_INSET, 6)
+
+
+def campaign_scene(
+    base: Scene, seed: int, index: int, forks: ForkGeometry = FORKS, pallet_types: Sequence[str] = ()
+) -> Scene:
     """Pick ``index`` of the random campaign ``seed``, drawn from a generator of its own: any pick can be
-    run alone and gives the scene it has inside the whole campaign, with ``forks`` (the configured ones)."""
+    run alone and gives the scene it has inside the whole campaign, with ``forks`` (the configured ones).
+
+    ``pallet_types``: catalogue names the pick's pallet is drawn from, uniformly, by a generator of its own, so that
+    the rest of the scene is drawn as with the pallet of ``base`` (empty: ``base``'s pallet).
+    """
+    if pallet_types:
+        kind = pallet_types[int(np.random.default_rng([seed, index, _TYPE_STREAM]).integers(len(pallet_types)))]
+        base = dataclasses.replace(base, pallet=PalletPlacement(kind, base.pallet.in_fork))
     return random_scene(np.random.default_rng([seed, index]), base, forks)
 
 
@@ -436,13 +458,18 @@ def simulate_command(
     resume: bool = False,
     indices: Sequence[int] | None = None,
     progress: bool = True,
+    pallet_types: Sequence[str] = (),
 ) -> dict[str, Any]:
     """``agf simulate``: whole picks in the simulated world, run as a campaign
     (:func:`drivers.sim.campaign.run_campaign`: results streamed to ``out``, resumable, on a process pool
-    or Ray). ``indices`` runs those picks of the campaign only (default: all ``runs``)."""
+    or Ray). ``indices`` runs those picks of the campaign only (default: all ``runs``); ``pallet_types`` the
+    catalogue's pallets a random pick's is drawn from (default: the base scene's)."""
     base = load_scene(scene or repo_path("configs/scenes/pick.yaml"))
-    pick = functools.partial(_pick, config, Path(plots) if plots else None, base, seed, runs is not None)
+    types = tuple(pallet_types)
+    pick = functools.partial(_pick, config, Path(plots) if plots else None, base, seed, runs is not None, types)
     identity = {"scene": str(scene) if scene else None, "random": runs, "seed": seed if runs else None}
+    if types:  # absent otherwise, so that campaigns written before the option resume as they were
+        identity["pallet_types"] = list(types)
     summary = run_campaign(
         pick,
         list(range(runs or 1)) if indices is None else list(indices),

@@ -13,13 +13,14 @@ from drivers.sim.world import campaign_scene, scene_summary
 BASE = load_scene(repo_path("configs/scenes/pick.yaml"))
 
 
-def light_pick(seed: int, index: int, interrupt_at: int | None = None) -> dict:
+def light_pick(seed: int, index: int, interrupt_at: int | None = None, pallet_types: tuple[str, ...] = ()) -> dict:
     """Refused when the pallet is more than 250 mm below the forks (they hide its pocket edges), faulted
     on every 7th run, else inserted; a viewing move where it is more than 200 mm below, but for every other
-    refused pick. ``interrupt_at``: this run stops the campaign as Ctrl-C does."""
+    refused pick. ``interrupt_at``: this run stops the campaign as Ctrl-C does; ``pallet_types`` as
+    ``agf simulate --pallet-types``."""
     if index == interrupt_at:
         raise KeyboardInterrupt
-    scene = campaign_scene(BASE, seed, index)
+    scene = campaign_scene(BASE, seed, index, pallet_types=pallet_types)
     truth = scene.pallet.in_fork.to_dict()
     rng = np.random.default_rng([seed, index, 1])
     measured = {k: v + rng.normal(0.0, 2.0 if k.endswith("_mm") else 0.1) for k, v in truth.items()}

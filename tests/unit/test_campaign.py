@@ -16,6 +16,7 @@ from agf.config import ForkGeometry
 from agf.errors import InputError, NotAvailableError
 from agf.report import RESULTS_FILE, read_results
 from drivers.sim.campaign import CampaignInterrupted, PoolBackend, make_backend, run_campaign
+from drivers.sim.render import catalogued
 from drivers.sim.world import SUPPORT_GAP, campaign_scene, pick_outcome, scene_summary, support_gap
 from tests.unit.campaign_picks import BASE, light_pick
 
@@ -45,6 +46,29 @@ def test_a_pick_scene_depends_on_its_seed_and_run_index_only():
     alone = scene(7, 3)
     assert [scene(7, k) for k in range(5)][3] == alone
     assert scene(7, 4) != alone and scene(8, 3) != alone
+
+
+def test_pallet_types_draw_a_pick_s_pallet_and_leave_the_rest_of_its_scene_as_drawn():
+    """``--pallet-types``: each pick's pallet drawn from its own stream of (seed, run), every type in turn over a
+    campaign, the load 50 mm inside the pallet's sides; the other draws as without it, and one type named alone
+    that the base scene has already gives the same scenes as no option (campaigns written before it stay)."""
+    types = ("epal", "gma-48x40", "jis-t11")
+    drawn = [campaign_scene(BASE, 7, k, pallet_types=types) for k in range(60)]
+    plain = [campaign_scene(BASE, 7, k) for k in range(60)]
+    assert {s.pallet.type for s in drawn} == set(types)
+    assert [s.pallet.type for s in drawn] == [campaign_scene(BASE, 7, k, pallet_types=types).pallet.type
+                                              for k in range(60)]
+    for mixed, alone in zip(drawn, plain, strict=True):
+        assert mixed.pallet.in_fork.to_dict() == alone.pallet.in_fork.to_dict()
+        assert mixed.environment == alone.environment
+        assert (mixed.load is None) == (alone.load is None)
+        kind = catalogued(mixed.pallet.type)
+        if mixed.load is not None:
+            assert mixed.load.size[:2] == pytest.approx((kind.length - 0.1, kind.width - 0.1))
+            assert mixed.load.size[2] == alone.load.size[2]
+    assert [scene_summary(campaign_scene(BASE, 7, k, pallet_types=("jis-t11",))) for k in range(60)] == [
+        scene_summary(s) for s in plain]
+    assert all(s.load is None or s.load.size[:2] == (1.0, 1.0) for s in plain)
 
 
 def test_campaign_scenes_start_with_the_tines_clear_of_the_slab_their_pallet_stands_on():

@@ -90,6 +90,16 @@ def test_simulate_only_names_a_pick_of_the_random_ones(capsys, argv):
     assert "--only: expected a pick number 0..N-1 of --random N" in payload["error"]
 
 
+@pytest.mark.parametrize("argv, named", [(["--random", "3", "--pallet-types", "epal,euro-2"], "euro-2 not in it"),
+                                         (["--random", "3", "--pallet-types", ","], "got ','"),
+                                         (["--scene", "configs/scenes/pick.yaml", "--pallet-types", "epal"],
+                                          "give --random N too")])
+def test_simulate_pallet_types_must_name_catalogue_pallets_of_random_picks(capsys, argv, named):
+    code, payload = run_json(capsys, "simulate", *argv, "--json")
+    assert code == EXIT_USAGE
+    assert "--pallet-types" in payload["error"] and named in payload["error"], payload["error"]
+
+
 def test_simulate_refuses_a_non_positive_job_count(capsys):
     code, payload = run_json(capsys, "simulate", "--random", "2", "--jobs", "0", "--json")
     assert code == EXIT_USAGE

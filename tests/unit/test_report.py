@@ -82,6 +82,32 @@ def test_the_report_counts_outcomes_and_tables_reasons(folder):
     assert sorted(int(row[0]) for row in failures) == [r["run"] for r in records if not r["ok"]]
 
 
+def test_the_report_tables_the_outcomes_by_pallet_type_where_a_campaign_drew_more_than_one(folder, tmp_path):
+    """``agf simulate --pallet-types``: picks, inserted, collided and measurements outside the bounds per type, in the
+    Markdown and in the JSON (``by_pallet_type``); a campaign of one type has no such table."""
+    types = ("epal", "gma-48x40", "jis-t11")
+    mixed = tmp_path / "mixed"
+    run_campaign(functools.partial(light_pick, SEED, pallet_types=types), list(range(18)),
+                 {"scene": None, "random": 18, "seed": SEED, "pallet_types": list(types)}, out=mixed,
+                 backend=PoolBackend(2), progress=False)
+    result = write_report(mixed)
+    records = read_results(mixed)
+    rows = {row[0]: row[1:] for row in table_rows((mixed / "report.md").read_text(), "Outcomes by pallet type")}
+    assert sorted(rows) == sorted(types)
+    outside = Counter(r["scene"]["pallet_type"] for r in records for m, t in zip(r["measured"], r["truth"], strict=True)
+                      if abs(m["pitch_deg"] - t["pitch_deg"]) > 0.1 or abs(m["z_mm"] - t["z_mm"]) > 5
+                      or abs(m["x_mm"] - t["x_mm"]) > 10)
+    for kind in types:
+        picks = [r for r in records if r["scene"]["pallet_type"] == kind]
+        inserted = sum(r["outcome"] == "inserted" for r in picks)
+        assert rows[kind] == [str(len(picks)), f"{inserted} ({inserted / len(picks):.0%})", "0", str(outside[kind])]
+        assert result["by_pallet_type"][kind] == {"runs": len(picks), "inserted": inserted, "collisions": 0,
+                                                  "measurements_outside_bounds": outside[kind]}
+    assert sum(outside.values()) == result["measurements_outside_bounds"] > 0
+    write_report(folder)
+    assert "## Outcomes by pallet type" not in (folder / "report.md").read_text()
+
+
 def test_first_refusals_count_the_first_frame_s_reason_and_the_pick_s_outcome(folder):
     """A pick that moved to look again ends with its last frame's reason; the report's table of first refusals counts
     the first frame's (its first viewing move's), or the pick's own where it ended on its first frame."""

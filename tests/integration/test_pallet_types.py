@@ -1,0 +1,52 @@
+"""``agf simulate --pallet-types``: whole campaign picks on the catalogue's other pallets, end to end (the command
+line, the simulated world measuring and planning for the pick's pallet, the campaign folder and its report)."""
+
+from __future__ import annotations
+
+import json
+
+from agf.cli import EXIT_OK, EXIT_USAGE, main
+from agf.report import RESULTS_FILE, read_results
+
+TYPES = "epal,gma-48x40,jis-t11"
+# Picks of `agf simulate --random 60 --seed 4242 --pallet-types epal,gma-48x40,jis-t11` (session 59): an unloaded
+# EUR pallet 37 mm below the forks and an unloaded GMA stringer pallet 158 mm above them, both inserted with no
+# viewing move.
+PICKS = {5: "epal", 16: "gma-48x40"}
+
+
+def simulate(capsys, *argv: str) -> tuple[int, dict]:
+    code = main(["simulate", "--random", "60", "--seed", "4242", *argv, "--json"])
+    return code, json.loads(capsys.readouterr().out)
+
+
+def test_picks_of_other_pallet_types_insert_with_every_measurement_within_the_bounds(capsys, tmp_path):
+    out = tmp_path / "campaign"
+    for index in PICKS:
+        code, summary = simulate(capsys, "--pallet-types", TYPES, "--only", str(index), "--out", str(out),
+                                 *(["--resume"] if out.exists() else []))
+        assert code == EXIT_OK, summary
+    records = {r["run"]: r for r in read_results(out)}
+    assert {run: r["scene"]["pallet_type"] for run, r in records.items()} == PICKS
+    for record in records.values():
+        assert record["outcome"] == "inserted" and not record["collision"], record.get("reason")
+        assert record["viewing_moves"] == 0 and len(record["measured"]) >= 2
+    by_type = summary["by_pallet_type"]
+    assert {kind: (c["runs"], c["inserted"], c["measurements_outside_bounds"]) for kind, c in by_type.items()} == {
+        "epal": (1, 1, 0), "gma-48x40": (1, 1, 0)}
+    assert json.loads((out / "campaign.json").read_text())["pallet_types"] == TYPES.split(",")
+    assert len((out / RESULTS_FILE).read_text().splitlines()) == 2
+
+
+def test_a_campaign_of_several_pallet_types_resumes_only_with_them(capsys, tmp_path):
+    """A folder that records pallet types is another campaign for a resume without them, or with others: its picks
+    would be drawn on other pallets."""
+    out = tmp_path / "campaign"
+    out.mkdir()
+    (out / "campaign.json").write_text(json.dumps({"scene": None, "random": 60, "seed": 4242,
+                                                   "pallet_types": TYPES.split(",")}))
+    for argv in ([], ["--pallet-types", "epal"]):
+        code, payload = simulate(capsys, *argv, "--only", "5", "--out", str(out), "--resume")
+        assert code == EXIT_USAGE
+        assert "holds another campaign" in payload["error"] and "pallet_types" in payload["error"], payload["error"]
+    assert not (out / RESULTS_FILE).exists() or not (out / RESULTS_FILE).read_text()
