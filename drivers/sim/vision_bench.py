@@ -25,7 +25,7 @@ from agf.controller import ControllerConfig
 from agf.geometry import Transform
 from agf.pallets import load_pallets
 from agf.paths import DEFAULT_CONFIG, repo_path
-from agf.scene import Scene, load_scene
+from agf.scene import Load, PalletPlacement, Scene, load_scene
 from agf.vision.accuracy import AccuracyTally
 from agf.vision.calibration import WITHOUT_SHIFT, Panel, fit_panel
 from agf.vision.face_model import face_model_from_pallet
@@ -157,6 +157,37 @@ def randomised_accuracy(quick: bool) -> dict[str, Any]:
             key = f"paper/{path.stem}/look-{k}"
             scenes.append((key, dataclasses.replace(base, look="random", seed=base.seed * 100 + k + 1)))
     return measure_scenes(scenes, rendered_fast, shorter_exposures=True).summary()
+
+
+# The catalogue's other pallets on the paper's geometries (the paper's own, the JIS T11, is the randomised case's):
+# one random look each, the look's seed apart from the randomised case's.
+OTHER_PALLETS = ("epal", "gma-48x40")
+
+
+@bench_case("pallet_types", "accuracy")
+def pallet_types_accuracy(quick: bool) -> dict[str, Any]:
+    """Pose and pitch on the paper's 18 geometries with the catalogue's other pallets (EUR, GMA stringer; a load
+    50 mm inside the pallet's sides) under a random look each: the vision was tuned on the paper's pallet."""
+    from drivers.sim.world import load_footprint  # the world's CANopen stack only when this case runs
+
+    scenes = []
+    for path in sorted((SCENES / "paper").glob("*.yaml"))[: 2 if quick else None]:
+        base = load_scene(path)
+        for k, kind in enumerate(OTHER_PALLETS):
+            load = base.load and Load((*load_footprint(kind), base.load.size[2]))
+            scene = dataclasses.replace(base, pallet=PalletPlacement(kind, base.pallet.in_fork), load=load,
+                                        look="random", seed=base.seed * 100 + RANDOM_LOOKS + k + 1)
+            scenes.append((f"paper/{path.stem}/{kind}", scene))
+    summary = measure_scenes(scenes, rendered_fast, shorter_exposures=True).summary()
+    return {**summary, "by_pallet_type": {kind: _count_of(summary, kind, len(scenes) // len(OTHER_PALLETS))
+                                          for kind in OTHER_PALLETS}}
+
+
+def _count_of(summary: dict[str, Any], kind: str, scenes: int) -> dict[str, int]:
+    """Of the :func:`pallet_types_accuracy` ``summary``, the frames of pallet ``kind`` (named ``.../<kind>``)."""
+    refused = sum(entry.split(": ", 1)[0].endswith(f"/{kind}") for entry in summary["refused"])
+    wrong = sum(name.endswith(f"/{kind}") for name in summary["wrong"])
+    return {"scenes": scenes, "within_bounds": scenes - refused - wrong, "refused": refused, "wrong_accepts": wrong}
 
 
 CAMPAIGN_SEED = 7
