@@ -47,10 +47,10 @@ def test_an_inserted_pick_drawn_again_measures_within_the_bounds_at_its_truth(to
 def test_only_the_refused_picks_are_diagnosed_unless_all_are_asked_for(tool, folder, monkeypatch, capsys):
     diagnosed = []
 
-    def record(config, base, seed, run):
+    def record(config, base, seed, run, pallet_types=()):
         assert base == repo_path("configs/scenes/pick.yaml")  # the scene agf simulate draws random picks from
-        diagnosed.append((seed, run))
-        return {"run": run, "loaded": False, "z_mm": 0, "with_true_prior": "refused: x",
+        diagnosed.append((seed, run, *pallet_types))
+        return {"run": run, "pallet_type": "jis-t11", "loaded": False, "z_mm": 0, "with_true_prior": "refused: x",
                 **{f"edges_at_truth_{n}": {"finding": "edges not found", "ratio": 0.0, "pitch_error_deg": None,
                                            "candidates_deg": []} for n in ("grey", "colour")}}
 
@@ -61,6 +61,11 @@ def test_only_the_refused_picks_are_diagnosed_unless_all_are_asked_for(tool, fol
     diagnosed.clear()
     assert tool.main([str(folder), "--all"]) == 0
     assert diagnosed == [(SEED, INSERTED), (SEED, REFUSED)]
+    diagnosed.clear()
+    meta = json.loads((folder / CAMPAIGN_FILE).read_text())
+    (folder / CAMPAIGN_FILE).write_text(json.dumps({**meta, "pallet_types": ["epal", "gma-48x40"]}))
+    assert tool.main([str(folder)]) == 0
+    assert diagnosed == [(SEED, REFUSED, "epal", "gma-48x40")]  # drawn as the campaign drew them
 
 
 def test_a_run_with_no_result_or_a_campaign_of_one_scene_is_refused_with_the_reason(tool, folder, capsys):
