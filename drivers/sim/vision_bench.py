@@ -46,8 +46,7 @@ def rendered(scene: Scene, key: str) -> np.ndarray:
         / f"{key.replace('/', '-')}-{hashlib.sha1(source).hexdigest()[:12]}.png"
     )
     if not path.exists():
-        path.parent.mkdir(parents=True, exist_ok=True)
-        cv2.imwrite(str(path), render.render(scene)[0])
+        _cache(path, render.render(scene)[0])
     return cv2.imread(str(path), cv2.IMREAD_COLOR)
 
 
@@ -58,9 +57,17 @@ def rendered_fast(scene: Scene, key: str) -> np.ndarray:
     name = f"fast-{key.replace('/', '-')}-{hashlib.sha1(source).hexdigest()[:12]}.png"
     path = Path(tempfile.gettempdir()) / "agf-renders" / name
     if not path.exists():
-        path.parent.mkdir(parents=True, exist_ok=True)
-        cv2.imwrite(str(path), fast_render.render_fast(scene)[0])
+        _cache(path, fast_render.render_fast(scene)[0])
     return cv2.imread(str(path), cv2.IMREAD_COLOR)
+
+
+def _cache(path: Path, image: np.ndarray) -> None:
+    """Write ``image`` to the render cache at ``path`` whole: written beside it and renamed, since another process
+    (an `agf bench` beside a test run) may read the same frame while it is written (libpng: "Read Error")."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    part = path.with_name(f"{path.stem}.{os.getpid()}.part.png")
+    cv2.imwrite(str(part), image)
+    os.replace(part, path)
 
 
 def _keys(quick: bool) -> list[str]:

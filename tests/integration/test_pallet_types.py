@@ -65,3 +65,29 @@ def test_the_bench_counts_each_pallet_type_s_frames():
     assert sum(c["refused"] for c in counts.values()) == len(summary["refused"])
     assert sum(c["within_bounds"] for c in counts.values()) == summary["within_bounds"]
     assert sum(c["wrong_accepts"] for c in counts.values()) == summary["wrong_accepts"] == 0
+
+
+def test_regression_a_cached_render_is_never_read_half_written(tmp_path, monkeypatch):
+    """An `agf bench --only pallet_types` beside this file's bench test read a frame the test was still writing into
+    the render cache (libpng "Read Error", the case failed). A frame is written beside its name and renamed: at its
+    name there is nothing or the whole frame, and nothing else is left."""
+    import cv2
+    import numpy as np
+
+    from drivers.sim import vision_bench
+
+    image = np.random.default_rng(0).integers(0, 255, (64, 48, 3), dtype=np.uint8)
+    path = tmp_path / "cache" / "frame.png"
+    written = []
+    real_imwrite = cv2.imwrite
+
+    def imwrite(name, pixels):
+        written.append((name, path.exists()))
+        return real_imwrite(name, pixels)
+
+    monkeypatch.setattr(vision_bench.cv2, "imwrite", imwrite)
+    vision_bench._cache(path, image)
+    [(name, existed)] = written
+    assert name != str(path) and not existed  # written under another name, the frame's name still free
+    assert np.array_equal(cv2.imread(str(path), cv2.IMREAD_COLOR), image)
+    assert [p.name for p in path.parent.iterdir()] == ["frame.png"]
