@@ -40,6 +40,7 @@ OPTIONAL = {
     "min_clearance_mm": (int, float, type(None)),
     "min_support_clearance_mm": (int, float, type(None)),
     "cycle_s": (int, float),
+    "cpu_s": (int, float),
     "durations_s": dict,
     "measured": list,
     "truth": list,
@@ -116,6 +117,7 @@ def campaign_figures(results: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
     counts = Counter(r["outcome"] for r in results)
     cycles = [r["cycle_s"] for r in results if r["ok"] and "cycle_s" in r]
     clearances = [r["min_clearance_mm"] for r in results if r.get("min_clearance_mm") is not None]
+    timed = [r for r in results if "cpu_s" in r]  # campaigns since session 59
     failures = [
         {
             "run": r["run"],
@@ -141,6 +143,7 @@ def campaign_figures(results: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
         "measurements_outside_bounds": sum(not within_bounds(e["error"]) for e in measurement_errors(results)),
         "min_clearance_mm": min(clearances) if clearances else None,
         "median_cycle_s": statistics.median(cycles) if cycles else None,
+        "cpu_s": sum(r["cpu_s"] for r in timed) if timed else None,
         "by_pallet_type": by_pallet_type(results),
         "failures": failures,
     }
@@ -396,6 +399,11 @@ def _markdown(folder: Path, meta: Mapping[str, Any], results: list[dict[str, Any
         f"median cycle of the inserted picks: {'-' if cycle is None else f'{cycle:.1f} s'}.",
         "",
     ]
+    cpu = [r["cpu_s"] for r in results if "cpu_s" in r]
+    if cpu:
+        lines += [f"Computing: {sum(cpu) / 60:.1f} CPU minutes over {len(cpu)} picks, {statistics.median(cpu):.1f} s "
+                  f"a pick (median), {max(cpu):.1f} s at most; the wall time of the campaign is about this over the "
+                  "cores it ran on.", ""]
     if any("viewing_moves" in r for r in results):
         viewed = sum(r.get("viewing_moves", 0) > 0 for r in results)
         lines += [

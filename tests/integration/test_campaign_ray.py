@@ -14,7 +14,7 @@ from drivers.sim.world import simulate_command
 pytest.importorskip("ray", reason="Ray is an optional extra: pip install -e '.[cluster]'")
 
 CONFIG = load_config(DEFAULT_CONFIG)
-TIMING = ("wall_s", "cycle_s", "log")
+TIMING = ("wall_s", "cpu_s", "cycle_s", "log")
 
 
 def picks_on(backend: str, folder) -> dict[int, dict]:

@@ -35,8 +35,8 @@ def campaign(folder, pick=None, *, resume=False, backend=None, indices=range(12)
     )
 
 
-def without_wall_time(results):
-    return [{k: v for k, v in r.items() if k != "wall_s"} for r in results]
+def without_timing(results):
+    return [{k: v for k, v in r.items() if k not in ("wall_s", "cpu_s")} for r in results]
 
 
 def test_a_pick_scene_depends_on_its_seed_and_run_index_only():
@@ -110,7 +110,7 @@ def test_an_interrupted_campaign_keeps_its_results_and_resumes_to_the_same_ones(
         f.write('{"run": 4, "ok": tr')  # a write the interruption cut short
     summary = campaign(cut, resume=True)
     assert summary["runs"] == 12
-    assert without_wall_time(read_results(cut)) == without_wall_time(read_results(whole))
+    assert without_timing(read_results(cut)) == without_timing(read_results(whole))
 
 
 def test_resume_refuses_another_campaigns_folder_and_a_new_campaign_refuses_a_used_one(tmp_path):
@@ -160,7 +160,7 @@ def test_ray_gives_the_process_pools_results(tmp_path):
     campaign(tmp_path / "pool")
     summary = campaign(tmp_path / "ray", backend=make_backend("ray", jobs=2))
     assert summary["backend"] == "local Ray"
-    assert without_wall_time(read_results(tmp_path / "ray")) == without_wall_time(read_results(tmp_path / "pool"))
+    assert without_timing(read_results(tmp_path / "ray")) == without_timing(read_results(tmp_path / "pool"))
 
 
 @pytest.mark.parametrize(
@@ -200,3 +200,26 @@ def test_regression_two_campaigns_started_in_the_same_second_get_folders_of_thei
     name = "20261126-024538-random-200-seed-7"
     assert [f.name for f in folders] == [name, f"{name}-2", f"{name}-3"]
     assert all(f.is_dir() for f in folders)
+
+
+def busy_pick(index: int) -> dict:
+    """A pick that computes for 0.3 s of CPU (run 0) or sleeps for 0.3 s (run 1)."""
+    import time
+
+    if index == 0:
+        end = time.process_time() + 0.3
+        while time.process_time() < end:
+            pass
+    else:
+        time.sleep(0.3)
+    return {"ok": True, "outcome": "inserted", "collision": False}
+
+
+def test_each_pick_records_the_cpu_time_its_process_spent_on_it(tmp_path):
+    """``cpu_s``: what a pick computed, which waiting does not add to (the wall time counts both); the summary sums
+    it over the campaign."""
+    summary = campaign(tmp_path / "c", busy_pick, backend=PoolBackend(1), indices=[0, 1])
+    computed, slept = sorted(read_results(tmp_path / "c"), key=lambda r: r["run"])
+    assert computed["cpu_s"] >= 0.29 and computed["wall_s"] >= 0.29
+    assert slept["cpu_s"] < 0.1 < 0.29 <= slept["wall_s"]
+    assert summary["cpu_s"] == pytest.approx(computed["cpu_s"] + slept["cpu_s"])

@@ -80,6 +80,8 @@ def test_the_report_counts_outcomes_and_tables_reasons(folder):
     assert result["exposure_changes"] == len(darker) > 0
     failures = table_rows(markdown, "Failures")
     assert sorted(int(row[0]) for row in failures) == [r["run"] for r in records if not r["ok"]]
+    cpu = sum(r["cpu_s"] for r in records)
+    assert result["cpu_s"] == pytest.approx(cpu) and f"{cpu / 60:.1f} CPU minutes over {RUNS} picks" in markdown
 
 
 def test_the_report_tables_the_outcomes_by_pallet_type_where_a_campaign_drew_more_than_one(folder, tmp_path):
