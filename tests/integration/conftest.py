@@ -43,13 +43,14 @@ def render_all(scene_paths: list[Path], out_dir: Path) -> dict[str, Path]:
 LOOKS_BEFORE_THE_SUPPORT_CHECK = {386: 1234191223, 660: 319796515}
 
 
-def campaign_scene_of(seed: int, index: int, as_written: bool = True):
-    """Pick ``index`` of the random campaign ``seed``; ``as_written``: with the look it had when its regression
-    test was written (:data:`LOOKS_BEFORE_THE_SUPPORT_CHECK`), else as the campaign draws it now."""
+def campaign_scene_of(seed: int, index: int, as_written: bool = True, pallet_types: tuple[str, ...] = ()):
+    """Pick ``index`` of the random campaign ``seed`` (of ``pallet_types``, as ``agf simulate --pallet-types``);
+    ``as_written``: with the look it had when its regression test was written (:data:`LOOKS_BEFORE_THE_SUPPORT_CHECK`),
+    else as the campaign draws it now."""
     from agf.scene import load_scene
     from drivers.sim.world import campaign_scene
 
-    scene = campaign_scene(load_scene(repo_path("configs/scenes/pick.yaml")), seed, index)
+    scene = campaign_scene(load_scene(repo_path("configs/scenes/pick.yaml")), seed, index, pallet_types=pallet_types)
     if as_written and seed == 7 and index in LOOKS_BEFORE_THE_SUPPORT_CHECK:
         return dataclasses.replace(scene, seed=LOOKS_BEFORE_THE_SUPPORT_CHECK[index])
     return scene

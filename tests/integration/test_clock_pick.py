@@ -367,13 +367,15 @@ def test_a_verifying_frame_whose_pitch_is_refused_is_confirmed_at_the_measured_p
     assert [row["stage"] for row in replayed["measurements"]][-1] == "confirming" and replayed["ok"], replayed
 
 
-def run_campaign_pick(seed: int, index: int, config=CONFIG, logged: bool = False, as_written: bool = True):
-    """Campaign pick ``index`` of ``seed`` in a simulated world (``as_written``: see conftest's campaign_scene_of):
-    its result, summary (with its log's path when ``logged``, written where ``config`` records) and the true pose of
-    each measurement it accepted."""
+def run_campaign_pick(
+    seed: int, index: int, config=CONFIG, logged: bool = False, as_written: bool = True, pallet_types=()
+):
+    """Campaign pick ``index`` of ``seed`` in a simulated world (``as_written``, ``pallet_types``: see conftest's
+    campaign_scene_of): its result, summary (with its log's path when ``logged``, written where ``config`` records)
+    and the true pose of each measurement it accepted."""
     from drivers.sim.world import pick_log, world_clock
 
-    scene = campaign_scene_of(seed, index, as_written)
+    scene = campaign_scene_of(seed, index, as_written, pallet_types)
     clock = world_clock(config)
     with contextlib.ExitStack() as stack:
         log = stack.enter_context(pick_log(config, scene, f"pick-{index:03d}", clock)) if logged else None
