@@ -408,8 +408,6 @@ def test_regression_campaign_pick_22_of_seed_7_accepts_no_measurement_outside_bo
     assert_no_measurement_outside_bounds(7, 22)
 
 
-
-
 @pytest.mark.parametrize("index", (107, 132))
 def test_regression_campaign_picks_of_seed_7_a_rival_pairing_within_0_05_deg_keeps_the_pair_ambiguous(
     index, monkeypatch
