@@ -144,11 +144,17 @@ def test_a_pick_on_simulated_time_takes_the_same_trajectory_as_on_wall_time(both
         assert np.abs(np.interp(t_wall, t_sim, set_sim) - set_wall).max() <= 2.0 / count + interpolation
         _, actual_wall = rows(a, "aligning", "actual", name)
         _, actual_sim = rows(b, "aligning", "actual", name)
-        # The wall clock sends a setpoint up to a cycle after the SYNC it belongs to (more when the
-        # machine is busy), so the actual positions may lag by what the axis covers in two cycles.
+        # On the wall clock the stream's time counts SYNCs, which a busy machine sends a few cycles late
+        # (PickController._watch_motion), so the actual positions follow the same motion later than the logged
+        # set-point time. Compared at the logged time, within two counts and two cycles' travel, CI failed at 2.6
+        # cycles with two other processes busy beside it. The delay that fits best must be under ten cycles, and
+        # with it the positions agree within the same two counts and two cycles' travel (idle, it is no delay).
         speed = np.abs(np.gradient(set_sim, t_sim)).max()
-        lag = np.abs(np.interp(t_wall, t_sim, actual_sim) - actual_wall).max()
-        assert lag <= 2.0 / count + 2 * cycle * speed, (name, lag)
+        delays = np.arange(0.0, 10 * cycle, cycle / 10)
+        misfit = [np.abs(np.interp(t_wall - delay, t_sim, actual_sim) - actual_wall).max() for delay in delays]
+        best = int(np.argmin(misfit))
+        assert best < len(delays) - 1, (name, misfit[-1])  # the actual positions lag 10 cycles or more
+        assert misfit[best] <= 2.0 / count + 2 * cycle * speed, (name, delays[best], misfit[best])
 
 
 @pytest.mark.xdist_group("both_clocks")  # one worker makes the two picks for both
