@@ -186,16 +186,15 @@ def pallet_types_accuracy(quick: bool) -> dict[str, Any]:
             scene = dataclasses.replace(base, pallet=PalletPlacement(kind, base.pallet.in_fork), load=load,
                                         look="random", seed=base.seed * 100 + RANDOM_LOOKS + 1)
             scenes.append((f"paper/{path.stem}/{kind}", scene))
-    summary = measure_scenes(scenes, rendered_fast, shorter_exposures=True).summary()
-    return {**summary, "by_pallet_type": {kind: _count_of(summary, kind, len(scenes) // len(PALLET_TYPES))
-                                          for kind in PALLET_TYPES}}
+    tally = measure_scenes(scenes, rendered_fast, shorter_exposures=True)
+    return {**tally.summary(), "by_pallet_type": {kind: _count_of(tally, kind) for kind in PALLET_TYPES}}
 
 
-def _count_of(summary: dict[str, Any], kind: str, scenes: int) -> dict[str, int]:
-    """Of the :func:`pallet_types_accuracy` ``summary``, the frames of pallet ``kind`` (named ``.../<kind>``)."""
-    refused = sum(entry.split(": ", 1)[0].endswith(f"/{kind}") for entry in summary["refused"])
-    wrong = sum(name.endswith(f"/{kind}") for name in summary["wrong"])
-    return {"scenes": scenes, "within_bounds": scenes - refused - wrong, "refused": refused, "wrong_accepts": wrong}
+def _count_of(tally: AccuracyTally, kind: str) -> dict[str, int]:
+    """The frames of pallet ``kind`` (named ``.../<kind>``) in :func:`pallet_types_accuracy`'s ``tally``, by verdict."""
+    verdicts = [verdict for name, _, verdict in tally.rows if name.endswith(f"/{kind}")]
+    return {"scenes": len(verdicts), "within_bounds": verdicts.count("within bounds"),
+            "refused": sum(v.startswith("refused") for v in verdicts), "wrong_accepts": verdicts.count("WRONG ACCEPT")}
 
 
 CAMPAIGN_SEED = 7

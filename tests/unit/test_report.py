@@ -13,7 +13,15 @@ import pytest
 
 from agf.cli import EXIT_OK, EXIT_USAGE, main
 from agf.errors import InputError
-from agf.report import RESULTS_FILE, first_refusals, outcomes_by_band, read_results, write_report
+from agf.report import (
+    RESULTS_FILE,
+    first_refusals,
+    measurement_errors,
+    outcomes_by_band,
+    read_results,
+    write_report,
+)
+from agf.vision.accuracy import within_bounds
 from drivers.sim.campaign import PoolBackend, ResultsFile, run_campaign
 from tests.unit.campaign_picks import light_pick
 
@@ -96,9 +104,7 @@ def test_the_report_tables_the_outcomes_by_pallet_type_where_a_campaign_drew_mor
     records = read_results(mixed)
     rows = {row[0]: row[1:] for row in table_rows((mixed / "report.md").read_text(), "Outcomes by pallet type")}
     assert sorted(rows) == sorted(types)
-    outside = Counter(r["scene"]["pallet_type"] for r in records for m, t in zip(r["measured"], r["truth"], strict=True)
-                      if abs(m["pitch_deg"] - t["pitch_deg"]) > 0.1 or abs(m["z_mm"] - t["z_mm"]) > 5
-                      or abs(m["x_mm"] - t["x_mm"]) > 10)
+    outside = Counter(e["scene"]["pallet_type"] for e in measurement_errors(records) if not within_bounds(e["error"]))
     for kind in types:
         picks = [r for r in records if r["scene"]["pallet_type"] == kind]
         inserted = sum(r["outcome"] == "inserted" for r in picks)
