@@ -54,6 +54,7 @@ def rendered_fast(scene: Scene, key: str) -> np.ndarray:
     """The campaign renderer's frame of ``scene`` (random looks), cached like :func:`rendered`."""
     modules = (fast_render, render, raycast, kernels, looks, textures)
     source = b"".join(Path(m.__file__).read_bytes() for m in modules) + repr(scene).encode()
+    source += repr(fast_render.TEXTURE_CONTRAST).encode()  # a test may draw the frames as they were (conftest)
     name = f"fast-{key.replace('/', '-')}-{hashlib.sha1(source).hexdigest()[:12]}.png"
     path = Path(tempfile.gettempdir()) / "agf-renders" / name
     if not path.exists():

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from multiprocessing import get_context
 from pathlib import Path
@@ -41,6 +42,17 @@ def render_all(scene_paths: list[Path], out_dir: Path) -> dict[str, Path]:
 # Looks of campaign seed 7 drawn before session 39, whose truck bed or dock held the tines' tips at the start
 # (random_scene draws such a look again now): their regression tests keep the frames they were written for.
 LOOKS_BEFORE_THE_SUPPORT_CHECK = {386: 1234191223, 660: 319796515}
+
+
+@pytest.fixture
+def point_sampled_texture(monkeypatch):
+    """The campaign renderer's frames as it drew them until session 60, its texture point-sampled (no texture step
+    sub-sampled: ``fast_render.TEXTURE_CONTRAST`` infinite), bit for bit (tests/integration/test_render.py): the
+    frames the regression tests of campaign picks and random looks were found on and describe. On the frames drawn
+    now most of those picks measure otherwise, while the vision they caught is the same."""
+    from drivers.sim import fast_render
+
+    monkeypatch.setattr(fast_render, "TEXTURE_CONTRAST", math.inf)
 
 
 def campaign_scene_of(seed: int, index: int, as_written: bool = True, pallet_types: tuple[str, ...] = ()):

@@ -11,6 +11,8 @@ from agf.cli import EXIT_OK, EXIT_USAGE, main
 from agf.report import RESULTS_FILE, read_results
 from tests.integration.test_clock_pick import assert_within_bounds, run_campaign_pick
 
+pytestmark = pytest.mark.usefixtures("point_sampled_texture")  # the frames these tests were written on
+
 TYPES = "epal,gma-48x40,jis-t11"
 # Picks of `agf simulate --random 60 --seed 4242 --pallet-types epal,gma-48x40,jis-t11` (session 59): an unloaded
 # EUR pallet 37 mm below the forks and an unloaded GMA stringer pallet 158 mm above them, both inserted with no
@@ -48,7 +50,8 @@ def test_picks_of_other_pallet_types_insert_with_every_measurement_within_the_bo
 # the line of sight with 3 % of its face ends agreeing (the verifying check against the plan refused the pick), pick
 # 263 (GMA, loaded) measured 44 mm too far and 43 mm low after two viewing moves (refused later), pick 253 (GMA,
 # loaded, inserted) verified 8 mm low.
-OPEN_PALLET_TYPE_WRONG_ACCEPTS = (9, 30, 36, 63, 88, 95, 116, 120, 166, 209, 253, 261, 263)
+# Session 60: 9, 95 and 116 no longer (test_regression_..._report_the_pitch_measured below).
+OPEN_PALLET_TYPE_WRONG_ACCEPTS = (30, 36, 63, 88, 120, 166, 209, 253, 261, 263)
 CAMPAIGN_TYPES = ("epal", "gma-48x40")
 
 
@@ -57,6 +60,15 @@ CAMPAIGN_TYPES = ("epal", "gma-48x40")
 )
 @pytest.mark.parametrize("index", OPEN_PALLET_TYPE_WRONG_ACCEPTS)
 def test_open_wrong_accepts_of_the_pallet_types_campaign_of_seed_7(index):
+    result, _, truths = run_campaign_pick(7, index, pallet_types=CAMPAIGN_TYPES)
+    assert_within_bounds(result.measurements, truths)
+
+
+@pytest.mark.parametrize("index", (9, 95, 116))
+def test_regression_pallet_types_campaign_picks_of_seed_7_report_the_pitch_measured(index):
+    """Open wrong accepts until session 60, 0.10-0.15 deg off in pitch: reported at the pitch their edges measured,
+    not the one the pose was last searched at (measure._at_pitch; see test_clock_pick), they accept nothing outside
+    the bounds."""
     result, _, truths = run_campaign_pick(7, index, pallet_types=CAMPAIGN_TYPES)
     assert_within_bounds(result.measurements, truths)
 

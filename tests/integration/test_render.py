@@ -110,6 +110,25 @@ def test_campaign_renderer_matches_the_reference(look, mean_abs, p99):
     assert abs(diff.mean()) < 0.5 and (np.abs(diff).max(axis=2) > 40).mean() < 0.01
 
 
+@pytest.mark.parametrize("look", ["fixed", "random"])
+def test_regression_campaign_frames_sub_sample_texture_steps_where_the_vision_reads(look):
+    """Inside the region the vision reads, the campaign renderer's frame is the reference's to within sensor noise:
+    texture steps (carton joints, tape, wood grain) are sub-sampled as outlines are. Point-sampled, the random look
+    differed by 2.3 grey levels on average there, 1.05 % of its pixels by more than 20 (fixed look 0.50, 0.002 %), and
+    the lines on a load's face, fitted to the stair-stepped joints, leaned 0.1-0.2 deg off the reference's: the
+    randomised bench's loaded refusals came from them (session 60). Sub-sampled: 1.3 and 0.17 % (fixed 0.27, none)."""
+    from agf.config import ForkGeometry
+    from drivers.sim.fast_render import _region
+
+    scene = dataclasses.replace(load_scene(repo_path("tests/data/scenes/paper/loaded-low-flat.yaml")), look=look)
+    reference, _ = render(scene, MID)
+    fast, _ = render_fast(scene, MID)
+    u0, v0, u1, v1 = _region(scene, MID, ForkGeometry())
+    inside = (slice(max(v0, 0), v1), slice(max(u0, 0), u1))
+    diff = np.abs(fast[inside].astype(float) - reference[inside])
+    assert diff.mean() < 1.5 and (diff.max(axis=2) > 20).mean() < 0.004, (diff.mean(), (diff.max(axis=2) > 20).mean())
+
+
 # sha1 of the region the vision reads (fast_render._region, 24 px in from its border for the blur kernels
 # and JPEG's blocks), rendered by the campaign renderer before it was made three times faster: the frames
 # of random looks whose wrong accepts the regression scenes hold (paper/loaded-middle-flat look 1306 is
@@ -120,6 +139,9 @@ def test_campaign_renderer_matches_the_reference(look, mean_abs, p99):
 # AMD EPYC without AVX-512, numpy 2.4.6, numba 0.68.1, Python 3.11.7) renders from the same code, whose fixed look
 # keeps its hash. The cause was not found: that machine gives its hashes with OpenCV 4.14 and 5.0, with numpy's AVX2
 # kernels disabled and with numba compiling for a generic CPU. A change of the renderer matches neither.
+# Since session 60 the renderer sub-samples texture steps in that region (fast_render.TEXTURE_CONTRAST): the hashes
+# are of its frames with that off (conftest point_sampled_texture), which are the frames before; what the
+# sub-sampling adds is held to the reference renderer's frame (the test above).
 REGION_HASHES = {
     ("paper/loaded-low-flat", 4): {
         "60eec1bcbb7213992be88f9a73cc34a7329e8a9b", "0d8a92e63fe050a5ff004ecfe9f5d3defaef74ca",
@@ -135,7 +157,7 @@ REGION_HASHES = {
 
 
 @pytest.mark.parametrize(("key", "seed"), list(REGION_HASHES), ids=lambda v: str(v).replace("/", "-"))
-def test_campaign_frames_keep_the_region_the_vision_reads_bit_for_bit(key, seed):
+def test_campaign_frames_keep_the_region_the_vision_reads_bit_for_bit(key, seed, point_sampled_texture):
     """Random looks (and the fixed one, None) of the campaign renderer: outside the region the vision
     reads, texture may be traded for time; inside, every pixel stays what it was."""
     from agf.config import ForkGeometry
