@@ -396,21 +396,6 @@ class _Frame:
         forward = self.camera_in_fork.apply_direction(edges.direction)
         return math.atan2(forward[1], forward[0])
 
-    def check_face_yaw(self, pose: PoseEstimate, edges: PitchEvidence) -> None:
-        """Refuse the face's own ``pose``, kept with the pitch of deck ``edges`` that could not place it (a line beside
-        one, :attr:`PitchEvidence.placed`), where its yaw differs from the edges' by more than
-        :attr:`MeasureConfig.face_fallback_yaw`, as :meth:`check_fallback` refuses a face the placed edges' pose
-        turns so. Random look 2 of paper scene unloaded-high-flat, seen from 1 m above with texture sub-sampled as
-        the reference renderer does: its deck edges within 0.014 deg of the truth in yaw and 0.04 in pitch, its face
-        matched 0.78 deg turned and 8.4 mm high, and accepted there (its face edges agreeing 54 %)."""
-        turned = abs(math.remainder(self.edges_yaw(edges) - pose.pallet_in_fork.euler[0], math.tau))
-        if turned > self.config.face_fallback_yaw:
-            raise MeasurementError(
-                f"the top deck's edges run {math.degrees(turned):.2f} deg in yaw from the front face's match (at "
-                f"most {math.degrees(self.config.face_fallback_yaw):.2f}), and a line beside them leaves them unable "
-                "to place it; refusing rather than guessing"
-            )
-
     def check_fallback(
         self, placed: PoseEstimate, own: PoseEstimate, agreement: EdgeAgreement, other: EdgeAgreement,
         edges: PitchEvidence,
@@ -422,13 +407,8 @@ class _Frame:
         ``edges``, whose pitch it keeps, miss the deck's front corners at it (:func:`check_deck_corners`)."""
         config = self.config
         apart = _distance(own.pallet_in_fork, placed.pallet_in_fork)
-        turned = abs(math.remainder(own.pallet_in_fork.euler[0] - placed.pallet_in_fork.euler[0], math.tau))
-        if turned > config.face_fallback_yaw:
-            raise MeasurementError(
-                f"the top deck's edges run {math.degrees(turned):.2f} deg in yaw from the front face's match (at "
-                f"most {math.degrees(config.face_fallback_yaw):.2f}), so their pitch is not the deck's; refusing "
-                "rather than guessing"
-            )
+        check_face_yaw(own.pallet_in_fork.euler[0], placed.pallet_in_fork.euler[0], config.face_fallback_yaw,
+                       "so their pitch is not the deck's")
         if apart > config.face_fallback_max and agreement.score - other.score < config.face_fallback_lead:
             raise MeasurementError(
                 f"the top deck's edges put the pallet {apart * 1e3:.0f} mm from the front face's match (at most "
@@ -510,7 +490,13 @@ class _Attempt:
         if chosen.hypothesis == "unloaded":
             frame.check_deck_edges_yaw(pose, chosen)
         if chosen.hypothesis == "unloaded" and not chosen.placed:
-            frame.check_face_yaw(pose, chosen)
+            # The face's own pose keeps the pitch of edges that could not place it: refused as check_fallback refuses
+            # one the placed edges' pose turns. Random look 2 of paper scene unloaded-high-flat, seen from 1 m above
+            # with texture sub-sampled as the reference renderer does: its deck edges within 0.014 deg of the truth in
+            # yaw and 0.04 in pitch, its face matched 0.78 deg turned and 8.4 mm high, and accepted there (its face
+            # edges agreeing 54 %).
+            check_face_yaw(pose.pallet_in_fork.euler[0], frame.edges_yaw(chosen), config.face_fallback_yaw,
+                           "and a line beside them leaves them unable to place it")
         placed = [self.onto_deck_edges(pose, chosen)] if chosen.hypothesis == "unloaded" and chosen.placed else []
         pose, agreement = frame.confirmed(placed + [pose], chosen, len(placed))
         if self.prior is None:
@@ -628,7 +614,7 @@ class _Attempt:
                 f"the front face and the top deck's edges disagree by {shift * 1e3:.0f} mm "
                 f"(at most {config.deck_edge_max * 1e3:.0f}); refusing rather than guessing"
             )
-        return dataclasses.replace(pose, pallet_in_fork=moved, pallet_in_camera=frame.camera_in_fork.inverse() @ moved)
+        return _moved(pose, moved, frame.camera_in_fork)
 
 
 def _pair_confirms(chosen: PitchEvidence, config: PitchConfig) -> bool:
@@ -809,6 +795,17 @@ def check_deck_corners(misses: NDArray[np.float64], limit: float) -> None:
         )
 
 
+def check_face_yaw(face_yaw: float, edges_yaw: float, limit: float, why: str) -> None:
+    """Refuse the front face's match at ``face_yaw`` (rad) where the top deck's edges give a yaw ``edges_yaw`` (rad)
+    more than ``limit`` (rad) from it; ``why`` ends the reason."""
+    turned = abs(math.remainder(face_yaw - edges_yaw, math.tau))
+    if turned > limit:
+        raise MeasurementError(
+            f"the top deck's edges run {math.degrees(turned):.2f} deg in yaw from the front face's match (at most "
+            f"{math.degrees(limit):.2f}), {why}; refusing rather than guessing"
+        )
+
+
 def check_in_volume(pallet_in_fork: Transform, volume: SearchVolume) -> None:
     """Refuse a pose outside the volume the pallet was searched in (position, yaw and pitch).
 
@@ -892,8 +889,13 @@ def _at_pitch(pose: PoseEstimate, pitch: float, camera_in_fork: Transform) -> Po
     pitch before, up to :attr:`MeasureConfig.pitch_tolerance` from it (random look 0 of paper scene
     unloaded-low-front-up at 0.6 of its light: edges 0.093 deg off, the pose searched at 0.121 and reported there)."""
     yaw, _, roll = pose.pallet_in_fork.euler
-    turned = Transform.from_euler(*pose.pallet_in_fork.translation, roll, pitch, yaw)
-    return dataclasses.replace(pose, pallet_in_fork=turned, pallet_in_camera=camera_in_fork.inverse() @ turned)
+    return _moved(pose, Transform.from_euler(*pose.pallet_in_fork.translation, roll, pitch, yaw), camera_in_fork)
+
+
+def _moved(pose: PoseEstimate, pallet_in_fork: Transform, camera_in_fork: Transform) -> PoseEstimate:
+    """``pose`` with the pallet at ``pallet_in_fork``, in the camera frame too."""
+    in_camera = camera_in_fork.inverse() @ pallet_in_fork
+    return dataclasses.replace(pose, pallet_in_fork=pallet_in_fork, pallet_in_camera=in_camera)
 
 
 def _distance(a: Transform, b: Transform) -> float:

@@ -547,7 +547,7 @@ def test_regression_a_face_match_turned_from_deck_edges_that_cannot_place_it_is_
     """Paper scene unloaded-high-flat under random look 2 (tests/data/scenes/fixed-wrong-accepts), as the campaign
     renderer drew it with texture steps sub-sampled at a contrast of 0.1 (session 60): its deck edges, a line beside
     them, gave the pitch and the yaw right but could not place the face, whose own match, 0.78 deg turned, was kept and
-    accepted 8.4 mm high. Now that match is refused (_Frame.check_face_yaw) and a later search measures it."""
+    accepted 8.4 mm high. Now that match is refused (measure.check_face_yaw) and a later search measures it."""
     from drivers.sim import fast_render
 
     monkeypatch.setattr(fast_render, "TEXTURE_CONTRAST", 0.1)
