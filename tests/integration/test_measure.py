@@ -608,3 +608,65 @@ def test_a_search_refused_for_clipped_highlights_ends_the_searches(pick, searche
         measure_pallet(image, load_camera(CONFIG.vision.camera), scene.camera_in_fork, pallet, CONFIG.vision.search,
                        forks=CONFIG.forks)
     assert len(calls) == searches, refused.value
+
+
+def _unloaded_evidence_at_truth(scene, image):
+    from agf.vision.grey import grey_from_bgr
+    from agf.vision.pitch import unloaded_evidence
+
+    return unloaded_evidence(grey_from_bgr(image), load_camera(scene.camera), scene.camera_in_fork,
+                             CATALOGUE[scene.pallet.type], scene.pallet.in_fork, colour=image)
+
+
+def test_regression_a_line_beside_a_deck_edge_gives_the_pitch_between_its_pairings(monkeypatch):
+    """Paper scene unloaded-high-flat under random look 1, as the campaign renderer draws it since session 60 (texture
+    steps sub-sampled at 0.2): a line 2.6 px beside one deck edge. At the true pose the edges' own pair gives +0.024
+    deg, the pair with that line -0.069; the deck edges were refused as ambiguous. One pairing is the deck's, so the
+    pitch is their midpoint, with half their spread in its sigma, and the edges no longer place the pose."""
+    from agf.vision.pitch import PitchConfig
+    from drivers.sim import fast_render
+
+    monkeypatch.setattr(fast_render, "TEXTURE_CONTRAST", 0.2)
+    scene = load_scene(SCENES / "paper/unloaded-high-flat.yaml")
+    scene = dataclasses.replace(scene, look="random", seed=scene.seed * 100 + 1 + 1)
+    evidence = _unloaded_evidence_at_truth(scene, fast_render.render_fast(scene)[0])
+    low, high = min(evidence.candidates), max(evidence.candidates)
+    assert high - low > PitchConfig().rival_pitch, evidence.candidates  # still two pitches, not one
+    assert evidence.valid and not evidence.placed, evidence.note
+    assert evidence.pitch == pytest.approx((low + high) / 2, abs=1e-12)
+    assert evidence.sigma >= (high - low) / 2
+    assert abs(math.degrees(evidence.pitch - scene.pallet.in_fork.euler[1])) < 0.05
+
+
+def test_an_ambiguous_pair_whose_pairings_are_all_off_stays_refused_for_its_clipped_deck(monkeypatch):
+    """Campaign seed 7 pick 22's first frame (texture sub-sampled at 0.2): a line beside a deck edge, and at the true
+    pose both pairings 0.24 and 0.31 deg low, their midpoint as far off, beside a deck clipped at 255. The midpoint
+    of an ambiguous pair still meets the checks of a pair (here the highlight beside the edges): refused."""
+    from drivers.sim import fast_render
+
+    monkeypatch.setattr(fast_render, "TEXTURE_CONTRAST", 0.2)
+    scene, image = campaign_first_frame(7, 22)
+    evidence = _unloaded_evidence_at_truth(scene, image)
+    assert len(evidence.candidates) > 1 and all(
+        abs(math.degrees(c - scene.pallet.in_fork.euler[1])) > 0.2 for c in evidence.candidates), evidence.candidates
+    assert not evidence.valid and evidence.overexposed, evidence.note
+
+
+def test_regression_a_face_agreeing_with_an_ambiguous_pairs_close_pitches_gives_the_pitch(monkeypatch):
+    """Paper scene loaded-low-rear-up under random look 5, texture sub-sampled at 0.2: at the true pose the load's
+    edges give +0.018 deg, paired with a line beside one -0.026; the 6 lines on its face, -0.032 deg, agree with both
+    and were refused for it ("agrees with more than one of the edges' pitches"). Pairings 0.044 deg apart are one
+    pitch to within the bounds (_between_rivals), and the face confirms it."""
+    from agf.vision.grey import grey_from_bgr
+    from agf.vision.pitch import loaded_evidence
+    from drivers.sim import fast_render
+
+    monkeypatch.setattr(fast_render, "TEXTURE_CONTRAST", 0.2)
+    scene = load_scene(SCENES / "paper/loaded-low-rear-up.yaml")
+    scene = dataclasses.replace(scene, look="random", seed=scene.seed * 100 + 5 + 1)
+    image = fast_render.render_fast(scene)[0]
+    evidence = loaded_evidence(grey_from_bgr(image), load_camera(scene.camera), scene.camera_in_fork,
+                               CATALOGUE[scene.pallet.type], scene.pallet.in_fork, colour=image)
+    assert len(evidence.candidates) > 1, evidence.candidates
+    assert evidence.valid, evidence.note
+    assert abs(math.degrees(evidence.pitch - scene.pallet.in_fork.euler[1])) < 0.05
