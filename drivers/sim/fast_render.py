@@ -152,10 +152,12 @@ def render_fast(
     camera: CameraModel | None = None,
     forks: ForkGeometry | None = None,
     shading: Literal["photo", "geometry"] = "photo",
+    look: Look | None = None,
 ) -> tuple[NDArray[np.uint8], dict[str, Any]]:
-    """The frame :func:`drivers.sim.render.render` draws, at a fraction of its cost (see the module)."""
+    """The frame :func:`drivers.sim.render.render` draws, at a fraction of its cost (see the module); ``look`` as for
+    :func:`camera_output`."""
     camera = camera or load_camera(scene.camera)
-    return pixels_sent(camera_output(scene, camera, forks, shading)), reference.truth(scene, camera)
+    return pixels_sent(camera_output(scene, camera, forks, shading, look)), reference.truth(scene, camera)
 
 
 def camera_output(
@@ -163,12 +165,15 @@ def camera_output(
     camera: CameraModel,
     forks: ForkGeometry | None = None,
     shading: Literal["photo", "geometry"] = "photo",
+    look: Look | None = None,
 ) -> NDArray[np.uint8] | JpegImage:
     """What the simulated camera sends of ``scene`` (:func:`render_fast`'s frame): its JPEG where the scene's
-    sensor compresses, else the pixels."""
+    sensor compresses, else the pixels. ``look``: drawn in this random look instead of the scene's own (the scene's
+    look simplified, :func:`drivers.sim.looks.simplified`), whatever the scene's ``look`` key says."""
     forks = forks or ForkGeometry()
     rng = np.random.default_rng(scene.seed)
-    look = draw_look(scene) if scene.look == "random" else None
+    if look is None and scene.look == "random":
+        look = draw_look(scene)
     objects, pallets = reference.build_objects(scene, forks, rng, look)
     shader = _shader(scene, shading, look, objects, pallets)
     image = _trace(camera, objects, pallets, _region(scene, camera, forks), *shader)

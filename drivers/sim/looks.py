@@ -11,7 +11,8 @@ relative to the target pallet in fork axes, so during a pick they stay put while
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from collections.abc import Iterable
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -119,6 +120,37 @@ class Look:
             out.append(CameraLight(light.power, np.asarray(light.colour), direction, position, distance, door,
                                    -R[:, 2], light.shadows))
         return out
+
+
+# What :func:`simplified` can take out of a look, and what each means.
+PARTS = {
+    "wood": "the pallet's wood grain, knots, plank gaps and wear (plain wood of its colour)",
+    "textures": "every surface's texture and wear (plain surfaces of their colours)",
+    "shadows": "the lights' hard shadows (the lights stay)",
+    "sensor": "the sensor's noise and JPEG compression",
+    "optics": "blur, motion blur, vignetting and gamma",
+}
+
+
+def simplified(look: Look, parts: Iterable[str]) -> Look:
+    """``look`` without some of its :data:`PARTS`, all else (geometry, colours, lights, exposure) as drawn: what a
+    measurement's error owes to each part is its error on the full look against its error without the part
+    (``tools/error_budget``)."""
+    parts = set(parts)
+    unknown = parts - PARTS.keys()
+    if unknown:
+        raise ValueError(f"look parts {sorted(unknown)}: expected some of {sorted(PARTS)}")
+    styles = dict(look.styles)
+    for material in styles if "textures" in parts else ("wood",) if "wood" in parts else ():
+        styles[material] = Style("plain", styles[material].colour, styles[material].seed, 0.0, 0.0)
+    changes: dict = {"styles": styles}
+    if "shadows" in parts:
+        changes["lights"] = tuple(replace(light, shadows=False) for light in look.lights)
+    if "sensor" in parts:
+        changes.update(sigma=0.0, jpeg_quality=None)
+    if "optics" in parts:
+        changes.update(blur_px=0.0, motion_px=0.0, vignetting=0.0, gamma=1.0)
+    return replace(look, **changes)
 
 
 def _pick(rng: np.random.Generator, options: list):

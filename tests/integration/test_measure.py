@@ -652,6 +652,24 @@ def test_an_ambiguous_pair_whose_pairings_are_all_off_stays_refused_for_its_clip
     assert not evidence.valid and evidence.overexposed, evidence.note
 
 
+def test_deck_edges_whose_stronger_pairing_is_off_beside_one_on_the_pitch_stay_refused(monkeypatch):
+    """Campaign seed 7 pick 140's first frame (texture sub-sampled at 0.2): at the true pose the deck edges' strongest
+    lines give a pitch 0.16 deg off and a line beside one edge the pitch within 0.1 deg; over the search's poses the
+    strong pairing gave 0.19-0.28 deg off. The frame is refused for the line beside the edge. A final edge fit that
+    weighted points down with their distance from the line (Tukey, 0.6 px; session 62, not kept) lost that line
+    and accepted the frame 0.243 deg off in pitch."""
+    from drivers.sim import fast_render
+
+    monkeypatch.setattr(fast_render, "TEXTURE_CONTRAST", 0.2)
+    scene, image = campaign_first_frame(7, 140)
+    evidence = _unloaded_evidence_at_truth(scene, image)
+    off = sorted(abs(math.degrees(c - scene.pallet.in_fork.euler[1])) for c in evidence.candidates)
+    assert len(off) == 2 and off[0] < 0.1 < off[1], off  # the frame described: one pairing right, one off
+    with pytest.raises(MeasurementError, match="a second line runs beside the unloaded edges"):
+        measure_pallet(image, load_camera(scene.camera), scene.camera_in_fork, CATALOGUE[scene.pallet.type],
+                       CONFIG.vision.search, forks=CONFIG.forks)
+
+
 def test_regression_a_face_agreeing_with_an_ambiguous_pairs_close_pitches_gives_the_pitch(monkeypatch):
     """Paper scene loaded-low-rear-up under random look 5, texture sub-sampled at 0.2: at the true pose the load's
     edges give +0.018 deg, paired with a line beside one -0.026; the 6 lines on its face, -0.032 deg, agree with both
