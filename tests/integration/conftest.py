@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
 import math
 import time
+from importlib.machinery import SourceFileLoader
 from multiprocessing import get_context
 from pathlib import Path
 
@@ -53,6 +55,14 @@ def point_sampled_texture(monkeypatch):
     from drivers.sim import fast_render
 
     monkeypatch.setattr(fast_render, "TEXTURE_CONTRAST", math.inf)
+
+
+def tool_module(name: str):
+    """The script ``tools/NAME`` (no ``.py``) loaded as a module, for its functions and ``main``."""
+    loader = SourceFileLoader(name, str(repo_path(f"tools/{name}")))
+    module = importlib.util.module_from_spec(importlib.util.spec_from_loader(loader.name, loader))
+    loader.exec_module(module)
+    return module
 
 
 def campaign_scene_of(seed: int, index: int, as_written: bool = True, pallet_types: tuple[str, ...] = ()):

@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
-from importlib.machinery import SourceFileLoader
-
 import numpy as np
 import pytest
 
@@ -15,16 +12,14 @@ from drivers.sim.fast_render import render_fast
 from drivers.sim.looks import draw_look, simplified
 from drivers.sim.vision_bench import rendered_fast
 from drivers.sim.world import campaign_scene
+from tests.integration.conftest import tool_module
 
 SEED, PICK = 7, 0  # unloaded, measured within the bounds in its full look after a shorter exposure (agf bench)
 
 
 @pytest.fixture(scope="module")
 def tool():
-    loader = SourceFileLoader("error_budget", str(repo_path("tools/error_budget")))
-    module = importlib.util.module_from_spec(importlib.util.spec_from_loader(loader.name, loader))
-    loader.exec_module(module)
-    return module
+    return tool_module("error_budget")
 
 
 @pytest.fixture(scope="module")

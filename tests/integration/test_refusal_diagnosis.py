@@ -2,25 +2,21 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-from importlib.machinery import SourceFileLoader
 
 import pytest
 
 from agf.paths import repo_path
 from agf.report import CAMPAIGN_FILE
 from drivers.sim.campaign import ResultsFile
+from tests.integration.conftest import tool_module
 
 SEED, INSERTED, REFUSED = 4242, 4, 20  # unloaded picks of `agf simulate --random 30 --seed 4242` (docs/campaigns.md)
 
 
 @pytest.fixture(scope="module")
 def tool():
-    loader = SourceFileLoader("refusal_diagnosis", str(repo_path("tools/refusal_diagnosis")))
-    module = importlib.util.module_from_spec(importlib.util.spec_from_loader(loader.name, loader))
-    loader.exec_module(module)
-    return module
+    return tool_module("refusal_diagnosis")
 
 
 @pytest.fixture
