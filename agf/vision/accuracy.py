@@ -11,13 +11,16 @@ from __future__ import annotations
 import statistics
 from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from agf.camera import CameraModel
 from agf.config import ForkGeometry, SearchVolume
 from agf.errors import MeasurementError, OverexposedError
 from agf.geometry import Transform
 from agf.pallets import PalletType
+
+if TYPE_CHECKING:
+    from agf.vision.measure import MeasureDetail
 
 BOUNDS = {"x_mm": 10.0, "z_mm": 5.0, "pitch_deg": 0.1}
 KEYS = ("x_mm", "y_mm", "z_mm", "pitch_deg", "yaw_deg")
@@ -32,6 +35,36 @@ def pose_errors(estimate: Transform, truth: Transform) -> dict[str, float]:
 def within_bounds(errors: dict[str, float]) -> bool:
     """Whether the errors are inside :data:`BOUNDS`."""
     return all(abs(errors[key]) <= bound for key, bound in BOUNDS.items())
+
+
+def measured_with_shorter_exposures(
+    image: Any,
+    shorter: Iterable[Any],
+    camera: CameraModel,
+    camera_in_fork: Transform,
+    pallet: PalletType,
+    volume: SearchVolume,
+    forks: ForkGeometry,
+) -> tuple[MeasureDetail, bool]:
+    """One frame measured without a prior, and whether a shorter exposure was needed. ``shorter``: the same view with
+    ever shorter exposures, taken one by one while the vision refuses a frame as overexposed, as the controller asks
+    its camera for them (``ControllerConfig.exposures``).
+
+    Raises
+    ------
+    MeasurementError
+        The refusal of the last frame measured (overexposed where no shorter one is left).
+    """
+    from agf.vision.measure import measure_pallet
+
+    retakes, shortened = iter(shorter), False
+    while True:
+        try:
+            return measure_pallet(image, camera, camera_in_fork, pallet, volume, forks=forks), shortened
+        except OverexposedError:
+            image, shortened = next(retakes, None), True
+            if image is None:
+                raise
 
 
 @dataclass
@@ -59,25 +92,14 @@ class AccuracyTally:
         truth_loaded: bool,
         shorter: Iterable[Any] = (),
     ) -> None:
-        """Measure one frame without a prior and count it, measured or refused. ``shorter``: the same view with
-        ever shorter exposures, taken one by one while the vision refuses a frame as overexposed, as the controller
-        asks its camera for them (``ControllerConfig.exposures``); none by default."""
-        from agf.vision.measure import measure_pallet
-
-        retakes, shortened = iter(shorter), False
-        while True:
-            try:
-                detail = measure_pallet(image, camera, camera_in_fork, pallet, volume, forks=forks)
-            except OverexposedError as exc:
-                image, shortened = next(retakes, None), True
-                if image is not None:
-                    continue
-                self.add_refused(name, str(exc))
-                return
-            except MeasurementError as exc:
-                self.add_refused(name, str(exc))
-                return
-            break
+        """Measure one frame without a prior and count it, measured or refused; ``shorter`` as for
+        :func:`measured_with_shorter_exposures` (none by default)."""
+        try:
+            detail, shortened = measured_with_shorter_exposures(image, shorter, camera, camera_in_fork, pallet, volume,
+                                                                forks)
+        except MeasurementError as exc:
+            self.add_refused(name, str(exc))
+            return
         m = detail.measurement
         errors = self.add_measured(name, m.pallet_in_fork, truth, m.loaded == truth_loaded, m.timing_ms)
         if shortened:

@@ -12,6 +12,7 @@ import os
 import statistics
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -220,18 +221,25 @@ def measure_scenes(scenes: list[tuple[str, Scene]], frame: Any, shorter_exposure
     shorter exposures a pick's controller asks the simulated camera for (random looks draw their exposure)."""
     config = load_config(DEFAULT_CONFIG)
     catalogue = load_pallets(config.vision.pallets)
-    controller = ControllerConfig()
-    scales = [controller.exposure_step ** (k + 1) for k in range(controller.exposures if shorter_exposures else 0)]
     tally = AccuracyTally()
     for key, scene in scenes:
         pallet = catalogue[scene.pallet.type]
         camera = load_camera(scene.camera)
-        shorter = (frame(exposed(scene, scale), f"{key}/exposure-{scale:.3f}") for scale in scales)
+        shorter = shorter_exposure_frames(scene, key, frame) if shorter_exposures else ()
         tally.measure(
             key, frame(scene, key), camera, scene.camera_in_fork, pallet, config.vision.search, config.forks,
             scene.pallet.in_fork, scene.loaded, shorter,
         )
     return tally
+
+
+def shorter_exposure_frames(scene: Scene, key: str, frame: Any) -> Iterator[np.ndarray]:
+    """The frames (``frame(scene, key)``, drawn as they are asked for) of ``scene`` with the ever shorter exposures a
+    pick's controller asks the simulated camera for after an overexposed frame."""
+    controller = ControllerConfig()
+    for k in range(controller.exposures):
+        scale = controller.exposure_step ** (k + 1)
+        yield frame(exposed(scene, scale), f"{key}/exposure-{scale:.3f}")
 
 
 @bench_case("calibrate", "accuracy")

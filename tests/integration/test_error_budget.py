@@ -40,7 +40,7 @@ def test_a_look_given_to_the_renderer_draws_what_the_scene_would(scene):
 
 
 def test_each_look_of_a_pick_is_measured_and_summarised(tool):
-    records = tool.measure_pick(SEED, PICK, [("sensor",)])
+    records = tool.measure_pick(SEED, PICK, [(), ("sensor",)])
     assert [r["look"] for r in records] == ["full look", "without sensor"]
     full = records[0]
     assert full["measured"] and full["within"] and not full["loaded"], full
@@ -102,5 +102,5 @@ def test_open_wrong_accepts_on_a_simplified_look(tool, monkeypatch, pick, parts,
     from drivers.sim import fast_render
 
     monkeypatch.setattr(fast_render, "TEXTURE_CONTRAST", 0.2)
-    [_, record] = tool.measure_pick(SEED, pick, [tuple(parts.split("+"))])
+    [record] = tool.measure_pick(SEED, pick, [tuple(parts.split("+"))])
     assert not record["measured"] or record["within"], (pitch_error, record["errors"])
