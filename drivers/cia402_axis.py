@@ -147,6 +147,11 @@ def emcy_name(code: int) -> str:
     return EmcyError(code, 0, b"", 0.0).get_desc().lower() or "unknown error"
 
 
+def _error_code_reason(code: int) -> str | None:
+    """The drive's own error code (0x603F, in TPDO2): why it is in FAULT when its EMCY was lost."""
+    return f"error code 0x{code:04X} {emcy_name(code)}" if code else None
+
+
 def axis_state(statusword: int) -> AxisState:
     """Collapse a CiA 402 statusword into an :class:`AxisState`."""
     for state, masks in _STATUS_MASKS.items():
@@ -802,7 +807,7 @@ class Cia402Axis(Axis):
             velocity=values.get(0x606C, 0) / self._scale,
             state=state,
             timestamp=self._last_tpdo if self._last_tpdo is not None else math.nan,
-            fault=self._fault,
+            fault=self._fault or (_error_code_reason(values.get(0x603F, 0)) if state is AxisState.FAULT else None),
         )
 
     def wait_for_feedback(self, timeout: float = 1.0) -> AxisFeedback:
