@@ -149,15 +149,19 @@ def test_a_pick_on_simulated_time_takes_the_same_trajectory_as_on_wall_time(both
         _, actual_sim = rows(b, "aligning", "actual", name)
         # On the wall clock the stream's time counts SYNCs, which a busy machine sends a few cycles late
         # (PickController._watch_motion), so the actual positions follow the same motion later than the logged
-        # set-point time. Compared at the logged time, within two counts and two cycles' travel, CI failed at 2.6
-        # cycles with two other processes busy beside it. The delay that fits best must be under ten cycles, and
-        # with it the positions agree within the same two counts and two cycles' travel (idle, it is no delay).
+        # set-point time, and by a lag that grows whenever a SYNC is late. Compared at the logged time, within two
+        # counts and two cycles' travel, CI failed at 2.6 cycles with two other processes busy beside it; with the one
+        # delay that fit best, it failed with four (tilt 0.00085 rad off at no delay, on a lag that changed during the
+        # motion). So each position is matched at its own lag: under ten cycles, and there within the same two counts
+        # and two cycles' travel (idle, it is no delay).
         speed = np.abs(np.gradient(set_sim, t_sim)).max()
         delays = np.arange(0.0, 10 * cycle, cycle / 10)
-        misfit = [np.abs(np.interp(t_wall - delay, t_sim, actual_sim) - actual_wall).max() for delay in delays]
-        best = int(np.argmin(misfit))
-        assert best < len(delays) - 1, (name, misfit[-1])  # the actual positions lag 10 cycles or more
-        assert misfit[best] <= 2.0 / count + 2 * cycle * speed, (name, delays[best], misfit[best])
+        misfit = np.abs(np.interp(t_wall[:, None] - delays, t_sim, actual_sim) - actual_wall[:, None])  # (T, D)
+        lag = misfit.argmin(axis=1)
+        worst = int(np.argmax(misfit.min(axis=1)))
+        assert lag.max() < len(delays) - 1, (name, t_wall[lag.argmax()])  # positions lagging 10 cycles or more
+        assert misfit[worst, lag[worst]] <= 2.0 / count + 2 * cycle * speed, (
+            name, t_wall[worst], delays[lag[worst]], misfit[worst, lag[worst]])
 
 
 @pytest.mark.xdist_group("both_clocks")  # one worker makes the two picks for both
