@@ -185,6 +185,7 @@ def measure_pallet(
     prior: Transform | None = None,
     verifying: bool = False,
     config: MeasureConfig = MeasureConfig(),
+    start: Transform | None = None,
 ) -> MeasureDetail:
     """Measure the pallet (pose, pitch, loaded or not) or raise :class:`MeasurementError` with the reason.
 
@@ -201,10 +202,16 @@ def measure_pallet(
     face edges with no step beside them then count against the deck edges' pose too (see
     :attr:`MeasureConfig.placed_blank_disagrees`): refused, such a face is confirmed at the plan's pitch
     (:func:`confirm_pallet`), which draws no new pitch.
+
+    ``start``: a pose known to within millimetres, the truth in a diagnosis (``tools/refusal_diagnosis``). The pose
+    search is then skipped: every pose the measurement would search for is the face's fine fit from ``start``, at
+    the pitch assumed there, starting at ``start``'s; everything after the search runs as without it. What is
+    refused so is not the search's doing.
     """
-    start = time.perf_counter()
+    began = time.perf_counter()
     frame = _Frame.of(image, camera, camera_in_fork, pallet, volume, forks, verifying, config)
-    starts = [prior.euler[1]] if prior is not None else [0.0, -volume.pitch_max / 2, volume.pitch_max / 2]
+    known = start if start is not None else prior
+    starts = [known.euler[1]] if known is not None else [0.0, -volume.pitch_max / 2, volume.pitch_max / 2]
     attempts = [(similarity, assumed, False) for similarity in config.similarities for assumed in starts]
     searches = list(config.similarities)
     if config.steep_similarity is not None:
@@ -215,7 +222,7 @@ def measure_pallet(
     for similarity, assumed, steep in attempts:
         search = dataclasses.replace(config.pose, similarity=similarity, finer_where_thin=steep)
         try:
-            measured = _Attempt(frame, search, prior).measured(assumed)
+            measured = _Attempt(frame, search, prior, start).measured(assumed)
             break
         except MeasurementError as exc:
             failures.append(exc)
@@ -227,7 +234,7 @@ def measure_pallet(
     if measured is None:
         raise frame.refusal(failures, searches)
     pose, chosen, evidence, agreement = measured
-    frame.timing["total"] = (time.perf_counter() - start) * 1e3
+    frame.timing["total"] = (time.perf_counter() - began) * 1e3
     measurement = PalletMeasurement(
         pallet_in_camera=pose.pallet_in_camera,
         pallet_in_fork=pose.pallet_in_fork,
@@ -473,6 +480,7 @@ class _Attempt:
     frame: _Frame
     search: PoseSearchConfig
     prior: Transform | None
+    start: Transform | None = None  # the search skipped: poses are fitted from here (measure_pallet's start)
 
     @cached_property
     def narrow(self) -> PoseSearchConfig:
@@ -506,10 +514,14 @@ class _Attempt:
     def pose_at(self, near: Transform | None, pitch: float, search: PoseSearchConfig) -> PoseEstimate:
         frame = self.frame
         with frame.timed("pose"):
-            estimate = estimate_pallet_pose(
-                frame.gray_f, frame.camera, frame.camera_in_fork, frame.face, frame.volume, prior=near, pitch=pitch,
-                forks=frame.forks, config=search, check=False,
-            )
+            if self.start is not None:
+                estimate = refine_pallet_pose(frame.gray_f, frame.camera, frame.camera_in_fork, frame.face, self.start,
+                                              pitch=pitch, forks=frame.forks, config=search)
+            else:
+                estimate = estimate_pallet_pose(
+                    frame.gray_f, frame.camera, frame.camera_in_fork, frame.face, frame.volume, prior=near,
+                    pitch=pitch, forks=frame.forks, config=search, check=False,
+                )
         return self.along_sight(estimate)
 
     def along_sight(self, pose: PoseEstimate) -> PoseEstimate:

@@ -15,6 +15,7 @@ import pytest
 from agf.camera import load_camera
 from agf.config import load_config
 from agf.errors import MeasurementError, OverexposedError
+from agf.geometry import Transform
 from agf.pallets import load_pallets
 from agf.paths import DEFAULT_CONFIG
 from agf.scene import load_scene
@@ -107,6 +108,26 @@ def test_pose_with_prior_agrees_with_the_search(rendered):
     detail = measure_pallet(image, load_camera(scene.camera), scene.camera_in_fork, CATALOGUE["jis-t11"],
                             CONFIG.vision.search, forks=CONFIG.forks, prior=prior)
     assert within_bounds(errors(scene, detail.measurement))
+
+
+def test_a_start_pose_replaces_the_search(rendered):
+    """``start`` (tools/refusal_diagnosis: what a perfect search would leave refused): from the true pose the frame
+    measures as the search measures it; from a pose a pallet's width aside, where the search from a prior that far
+    off still finds the pallet, there is no search to find it, and the measurement is refused."""
+    key = "paper/unloaded-middle-flat"
+    scene = load_scene(SCENES / f"{key}.yaml")
+    image = cv2.imread(str(rendered[key]), cv2.IMREAD_COLOR)
+    truth = scene.pallet.in_fork
+    aside = Transform(truth.rotation, truth.translation + [0.0, 0.25, 0.0])
+
+    def measured(**known):
+        return measure_pallet(image, load_camera(scene.camera), scene.camera_in_fork, CATALOGUE["jis-t11"],
+                              CONFIG.vision.search, forks=CONFIG.forks, **known).measurement
+
+    assert within_bounds(errors(scene, measured(start=truth)))
+    assert within_bounds(errors(scene, measured(prior=aside)))
+    with pytest.raises(MeasurementError):
+        measured(start=aside)
 
 
 def test_agf_measure_cli_prints_the_contract_and_writes_the_overlay(rendered, tmp_path, capsys):

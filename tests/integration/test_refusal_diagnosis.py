@@ -36,6 +36,7 @@ def test_an_inserted_pick_drawn_again_measures_within_the_bounds_at_its_truth(to
     [record] = json.loads(capsys.readouterr().out)
     assert record["run"] == INSERTED and not record["loaded"]
     assert record["with_true_prior"] == "measured within the bounds", record
+    assert record["from_true_start"] == "measured within the bounds", record
     grey = record["edges_at_truth_grey"]
     assert grey["finding"] == "valid" and abs(grey["pitch_error_deg"]) <= 0.1
 
@@ -47,6 +48,7 @@ def test_only_the_refused_picks_are_diagnosed_unless_all_are_asked_for(tool, fol
         assert base == repo_path("configs/scenes/pick.yaml")  # the scene agf simulate draws random picks from
         diagnosed.append((seed, run, *pallet_types))
         return {"run": run, "pallet_type": "jis-t11", "loaded": False, "z_mm": 0, "with_true_prior": "refused: x",
+                "from_true_start": "refused: y",
                 **{f"edges_at_truth_{n}": {"finding": "edges not found", "ratio": 0.0, "pitch_error_deg": None,
                                            "candidates_deg": []} for n in ("grey", "colour")}}
 
