@@ -112,8 +112,8 @@ def test_pose_with_prior_agrees_with_the_search(rendered):
 
 def test_a_start_pose_replaces_the_search(rendered):
     """``start`` (tools/refusal_diagnosis: what a perfect search would leave refused): from the true pose the frame
-    measures as the search measures it; from a pose a pallet's width aside, where the search from a prior that far
-    off still finds the pallet, there is no search to find it, and the measurement is refused."""
+    measures within the bounds; from a pose 250 mm aside, where the search from a prior that far off still finds the
+    pallet, there is no search to find it, and the measurement is refused."""
     key = "paper/unloaded-middle-flat"
     scene = load_scene(SCENES / f"{key}.yaml")
     image = cv2.imread(str(rendered[key]), cv2.IMREAD_COLOR)
