@@ -13,6 +13,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
 
 from agf.vision.panorama import Panorama
@@ -88,21 +89,15 @@ def hough_line(
     edges = np.arange(phi_range[0], phi_range[1] + bin_width, bin_width)
     if edges.size < 2:
         return None
-    phis -= edges[0]
-    phis /= bin_width
-    bins = np.floor(phis, out=phis).astype(np.int64)
-    inside = (bins >= 0) & (bins < edges.size - 1)
-    bins += np.arange(len(taus))[:, None] * (edges.size - 1)
     shape = (len(taus), edges.size - 1)
+    bins = _accumulator_bins(phis, edges[0], bin_width, shape[1])
+    weights = np.asarray(weights, dtype=np.float64)
 
-    def votes(points: NDArray[np.int_] | slice) -> Array:
-        """The accumulator (taus, bins) of the edge points ``points`` selects: indices, or a slice, whose view of
-        every point's columns spares the copy that indexing by all of them made (10 % of a call)."""
-        voting = inside[:, points]
-        cast = np.broadcast_to(weights[None, points], voting.shape)[voting]
-        return np.bincount(bins[:, points][voting], weights=cast, minlength=shape[0] * shape[1]).reshape(shape)
+    def votes(points: NDArray[np.int64]) -> Array:
+        """The accumulator (taus, bins) of the edge points ``points`` (indices)."""
+        return _votes(bins, weights, points, shape[0] * shape[1]).reshape(shape)
 
-    raw = votes(slice(None))
+    raw = votes(np.arange(len(directions)))
     fits: list[SphereLine] = []
     for _ in range(peaks):
         summed = raw.copy()  # each bin with its two neighbours: a line's votes straddle bin borders
@@ -132,6 +127,31 @@ def hough_line(
         raw -= votes(np.flatnonzero(best.inliers))
         np.maximum(raw, 0.0, out=raw)
     return max(fits, key=lambda fit: fit.score) if fits else None
+
+
+@njit(cache=True)
+def _accumulator_bins(phis: Array, start: float, width: float, count: int) -> NDArray[np.int64]:  # pragma: no cover
+    """The accumulator cell (tau row * ``count`` + phi bin) of each (tau, point) crossing ``phis`` (taus, N), rad:
+    bins ``width`` wide from ``start``; -1 outside the ``count`` bins. numpy's steps (subtract, divide, floor) in
+    one pass without their (taus, N) temporaries."""
+    out = np.empty(phis.shape, np.int64)
+    for i in range(phis.shape[0]):
+        for j in range(phis.shape[1]):
+            q = (phis[i, j] - start) / width
+            out[i, j] = i * count + math.floor(q) if 0.0 <= q < count else -1
+    return out
+
+
+@njit(cache=True)
+def _votes(bins: NDArray[np.int64], weights: Array, points: NDArray[np.int64], cells: int) -> Array:  # pragma: no cover
+    """The ``weights`` (N,) of ``points`` summed into their ``bins`` (taus, N; -1: none) of ``cells`` accumulator cells,
+    tau row by tau row in the order of ``points``: the order, and so the sums, of numpy's bincount over them."""
+    out = np.zeros(cells)
+    for i in range(bins.shape[0]):
+        for j in points:
+            if bins[i, j] >= 0:
+                out[bins[i, j]] += weights[j]
+    return out
 
 
 def refine_line(directions: Array, weights: Array, normal: Array, tolerance: float) -> SphereLine | None:

@@ -23,6 +23,7 @@ from typing import NamedTuple
 
 import cv2
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
 
 from agf.camera.base import CameraModel
@@ -800,13 +801,32 @@ def _line_sharpness(points: Array, axes: Array, reference: Array, pixel: float) 
     e1 = _unit(np.cross(axes, reference))
     e2 = np.cross(axes, e1)
     lon = np.arctan2(e2 @ points.T, e1 @ points.T)  # (K, N)
-    bins = np.floor(lon / (0.5 * pixel)).astype(np.int64)
-    bins -= bins.min(axis=1, keepdims=True)
-    width = int(bins.max()) + 2
-    counts = np.bincount((bins + np.arange(len(axes))[:, None] * width).ravel(), minlength=len(axes) * width)
-    counts = counts.reshape(len(axes), width).astype(float)
-    paired = counts[:, :-1] + counts[:, 1:]
-    return np.sum(paired**2, axis=1)
+    return _bunching(lon, 0.5 * pixel)
+
+
+@njit(cache=True)
+def _bunching(lon: Array, half: float) -> Array:  # pragma: no cover - compiled
+    """:func:`_line_sharpness` of longitudes ``lon`` (K, N) in bins ``half`` wide, each row's bins counted from its
+    lowest: the sums of integer squares are exact, so they equal numpy's (its floor, bincount and sum over the (K, N)
+    bins, 0.1 s of a refused campaign frame's 3 s, in two passes without them)."""
+    k, n = lon.shape
+    low, width = np.empty(k, np.int64), 0
+    for i in range(k):
+        lo = hi = math.floor(lon[i, 0] / half)
+        for j in range(1, n):
+            b = math.floor(lon[i, j] / half)
+            lo, hi = min(lo, b), max(hi, b)
+        low[i], width = lo, max(width, hi - lo + 2)
+    sharpness, counts = np.empty(k), np.empty(width, np.int64)
+    for i in range(k):
+        counts[:] = 0
+        for j in range(n):
+            counts[math.floor(lon[i, j] / half) - low[i]] += 1
+        total = 0
+        for b in range(width - 1):
+            total += (counts[b] + counts[b + 1]) ** 2
+        sharpness[i] = total
+    return sharpness
 
 
 def _face_lines(points: Array, axis: Array, reference: Array, pixel: float, config: PitchConfig) -> tuple[Array, Array]:
