@@ -21,6 +21,7 @@ from typing import Any
 
 from agf.config import Config, load_config
 from agf.errors import AgfError, ConfigError, InputError, NotAvailableError
+from agf.heap import keep_freed_memory
 from agf.pallets import load_pallets
 from agf.paths import DEFAULT_CONFIG
 from agf.plugins import load_object
@@ -304,6 +305,7 @@ def _exit_code(exc: AgfError) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``agf`` console script; returns the exit code."""
+    keep_freed_memory()
     argv = list(sys.argv[1:] if argv is None else argv)
     as_json = "--json" in argv
     parser = build_parser()

@@ -30,6 +30,7 @@ from typing import Any
 from tqdm import tqdm
 
 from agf.errors import AgfError, ConfigError, InputError, NotAvailableError
+from agf.heap import keep_freed_memory
 from agf.report import CAMPAIGN_FILE, RESULTS_FILE, campaign_figures, read_results, validate_result
 
 Pick = Callable[[int], dict[str, Any]]
@@ -48,6 +49,7 @@ def run_one(pick: Pick, index: int) -> tuple[int, dict[str, Any]]:
     process spent on it (``cpu_s``, every thread: a worker runs one pick at a time; unlike wall time, it does not
     grow with what else the machine runs); a pick that crashes is recorded as faulted with the exception, so one
     bug does not lose a night's campaign."""
+    keep_freed_memory()  # a Ray worker's process was not started by agf's command line, which keeps it
     start, cpu = time.monotonic(), time.process_time()
     try:
         record = pick(index)
