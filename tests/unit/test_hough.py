@@ -73,3 +73,24 @@ def test_regression_a_band_of_texture_that_outvotes_a_sharp_edge_in_the_accumula
     assert line.inliers[:100].mean() > 0.95 and not line.inliers[100:].any()
     first_peak = hough_line(PANORAMA, points, np.ones(len(points)), PANORAMA.lon_range, tolerance=tolerance, peaks=1)
     assert first_peak is not None and first_peak.inliers[100:].sum() > first_peak.inliers[:100].sum()  # the trap
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_compiled_accumulator_sums_as_numpy_bincount_does(seed):
+    """The accumulator's cells and votes (compiled) equal numpy's floor and weighted bincount over the same crossings,
+    bit for bit: the points outside the bins vote nowhere, a subset of points votes in its own order."""
+    from agf.vision.hough import _accumulator_bins, _votes
+
+    rng = np.random.default_rng(seed)
+    taus, n, count, width = 7, 500, 40, 0.01
+    phis = rng.uniform(-0.05, 0.45, (taus, n))
+    weights = rng.uniform(0.1, 3.0, n)
+    bins = _accumulator_bins(phis, 0.0, width, count)
+    expected = np.floor(phis / width).astype(np.int64)
+    inside = (expected >= 0) & (expected < count)
+    np.testing.assert_array_equal(bins, np.where(inside, expected + np.arange(taus)[:, None] * count, -1))
+    points = np.flatnonzero(rng.random(n) < 0.3)
+    voting = inside[:, points]
+    cells = (expected + np.arange(taus)[:, None] * count)[:, points][voting]
+    summed = np.bincount(cells, weights=np.broadcast_to(weights[points], voting.shape)[voting], minlength=taus * count)
+    np.testing.assert_array_equal(_votes(bins, weights, points, taus * count), summed)

@@ -419,3 +419,19 @@ def test_yaw_from_circle_recovers_the_yaw_of_a_line_along_pallet_y(seed):
     normal = np.cross(point, along)
     guess = Transform.from_euler(*pose.translation, roll, pitch, yaw + math.radians(rng.uniform(-1, 1)))
     assert yaw_from_circle(normal / np.linalg.norm(normal), guess) == pytest.approx(yaw, abs=1e-9)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_compiled_line_sharpness_equals_numpy_counts_of_the_same_bins(seed):
+    """The longitudes' bunching (compiled) is numpy's: each row's bins counted from its lowest, each bin summed with
+    its neighbour and squared; rows of different spreads share one width, as they did in one bincount."""
+    from agf.vision.pitch import _bunching
+
+    rng = np.random.default_rng(seed)
+    lon = np.concatenate([rng.normal(0.0, 0.002, (4, 300)), rng.uniform(-0.3, 0.3, (3, 300))])
+    half = 0.5 * PIXEL
+    bins = np.floor(lon / half).astype(np.int64)
+    bins -= bins.min(axis=1, keepdims=True)
+    width = int(bins.max()) + 2
+    counts = np.array([np.bincount(row, minlength=width) for row in bins], float)
+    np.testing.assert_array_equal(_bunching(lon, half), np.sum((counts[:, :-1] + counts[:, 1:]) ** 2, axis=1))
