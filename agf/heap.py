@@ -5,9 +5,9 @@ glibc's malloc gives every block over 32 MB its own ``mmap`` and unmaps it when 
 once over 64 MB of it is free, so the next frame maps fresh pages and faults every one of them in. On a virtual
 machine whose host takes back the pages a guest frees (free page reporting: the Firecracker VM this project is
 built and tested on), faulting a page in again after it was free for a few seconds cost 8 ms a megabyte: 3-4 s to
-touch 440 MB, against 0.1 s right after it was freed. A rendered campaign frame spent a quarter of its time so,
-and the reference renderer half of its (``agf bench``: ``render.frame_s`` 0.85 -> 0.64 s, the reference
-7.97 -> 4.98 s; ``agf simulate --random 30 --seed 4242`` 160 -> 152 s, its system time 34 -> 16 s).
+touch 440 MB, against 0.1 s right after it was freed. A rendered campaign frame spent a fifth of its time so, and
+the reference renderer a third of its (``agf bench``: ``render.frame_s`` 0.847 -> 0.665 s, the reference 7.97 ->
+5.05 s; ``agf simulate --random 30 --seed 4242``: 160 -> 142 s, its system time 34 -> 15 s, the same picks).
 
 So the heap never unmaps or trims: a freed block is reused by the next allocation, whose pages are already in.
 The process keeps its peak use, as a controller that measures frame after frame needs it again anyway. A C
