@@ -435,3 +435,4 @@ def test_compiled_line_sharpness_equals_numpy_counts_of_the_same_bins(seed):
     width = int(bins.max()) + 2
     counts = np.array([np.bincount(row, minlength=width) for row in bins], float)
     np.testing.assert_array_equal(_bunching(lon, half), np.sum((counts[:, :-1] + counts[:, 1:]) ** 2, axis=1))
+    np.testing.assert_array_equal(_bunching(lon[:, :0], half), np.zeros(len(lon)))  # no points: sharp nowhere
