@@ -57,6 +57,13 @@ class PalletHiddenError(MeasurementError):
         super().__init__(message, found, pallet_in_fork)
 
 
+class FaceSimilarityError(MeasurementError):
+    """The pallet's front face was refused on its similarity alone (too low, or too close to a rival's): a measure of
+    brightness, which the face's edges, where the image's gradients run as its outline and pockets do, may settle
+    (``MeasureConfig.similarity_excused_by_edges``).
+    """
+
+
 class OverexposedError(MeasurementError):
     """Clipped highlights where the vision reads its edges made it refuse: the same view with a shorter
     exposure may measure, so the controller may ask the camera for one (:meth:`agf.frames.FrameSource.set_exposure`)

@@ -37,7 +37,7 @@ from numpy.typing import NDArray
 from agf.camera.base import CameraModel
 from agf.camera.grid import pixels_from_grid
 from agf.config import ForkGeometry, SearchVolume
-from agf.errors import MeasurementError, PalletHiddenError
+from agf.errors import FaceSimilarityError, MeasurementError, PalletHiddenError
 from agf.geometry import Transform, matrix_from_euler
 from agf.vision.edges import EdgeSearch, search_edges
 from agf.vision.face_model import ENDS, FaceModel
@@ -999,10 +999,14 @@ def _margin(score, params, others, candidates, face, eye) -> float:
 
 
 def check_pose_estimate(
-    estimate: PoseEstimate, camera: CameraModel, face: FaceModel, config: PoseSearchConfig = PoseSearchConfig()
+    estimate: PoseEstimate, camera: CameraModel, face: FaceModel, config: PoseSearchConfig = PoseSearchConfig(),
+    *, similarity: bool = True,
 ) -> None:
     """Raise :class:`MeasurementError` with the reason unless the estimate is convincing: face in view,
-    not hidden by the forks, similar enough, clearly better than any rival, edges fitting."""
+    not hidden by the forks, similar enough, clearly better than any rival, edges fitting.
+
+    The similarity's two refusals (too low, a rival too close) are :class:`~agf.errors.FaceSimilarityError`;
+    ``similarity`` False skips them, for a caller whose other evidence settled them."""
     score, margin, residual = estimate.score, estimate.margin, estimate.residual_px
     occluded, worst_group = estimate.occluded, estimate.group_inliers
     _, valid = camera.project(estimate.pallet_in_camera.apply(face.corners()))
@@ -1012,18 +1016,8 @@ def check_pose_estimate(
         raise PalletHiddenError(
             f"the forks hide {occluded:.0%} of the pallet's pocket edges from the camera", estimate.pallet_in_fork
         )
-    if score < config.min_score:
-        raise MeasurementError(f"no convincing pallet front face: similarity {score:.2f} < {config.min_score:.2f}")
-    if margin < 0:  # a pose refined at the measured pitch can score below a rival found at the assumed one
-        raise MeasurementError(
-            f"ambiguous pallet: a rival scores {-margin:.2f} above the measured pose's similarity {score:.2f} "
-            f"(need a lead of {config.min_margin:.2f})"
-        )
-    if margin < config.min_margin:
-        raise MeasurementError(
-            f"ambiguous pallet: the runner-up is within {margin:.2f} of the best similarity {score:.2f} "
-            f"(need a lead of {config.min_margin:.2f})"
-        )
+    if similarity:
+        _check_similarity(score, margin, config)
     if worst_group < config.min_group_inliers:
         raise MeasurementError(
             f"pocket edges fit poorly: only {worst_group:.0%} of one edge group agrees with the fitted pose "
@@ -1031,6 +1025,23 @@ def check_pose_estimate(
         )
     if residual > config.max_residual_px:
         raise MeasurementError(f"pocket edges fit poorly: residual {residual:.2f} px > {config.max_residual_px} px")
+
+
+def _check_similarity(score: float, margin: float, config: PoseSearchConfig) -> None:
+    """Raise :class:`~agf.errors.FaceSimilarityError` where the face's similarity is below the minimum or leads the
+    best rival by less than the minimum margin."""
+    if score < config.min_score:
+        raise FaceSimilarityError(f"no convincing pallet front face: similarity {score:.2f} < {config.min_score:.2f}")
+    if margin < 0:  # a pose refined at the measured pitch can score below a rival found at the assumed one
+        raise FaceSimilarityError(
+            f"ambiguous pallet: a rival scores {-margin:.2f} above the measured pose's similarity {score:.2f} "
+            f"(need a lead of {config.min_margin:.2f})"
+        )
+    if margin < config.min_margin:
+        raise FaceSimilarityError(
+            f"ambiguous pallet: the runner-up is within {margin:.2f} of the best similarity {score:.2f} "
+            f"(need a lead of {config.min_margin:.2f})"
+        )
 
 
 # -- image ----------------------------------------------------------------------------------------

@@ -281,6 +281,21 @@ def test_a_refusal_carries_its_rough_pose_only_when_the_image_confirms_it(pick, 
     assert math.dist(rough.translation, scene.pallet.in_fork.translation) < 0.01
 
 
+def test_a_face_its_similarity_leaves_ambiguous_is_measured_where_its_edges_agree():
+    """Campaign seed 7, pick 176 (unloaded, 1.7 deg): the face's similarity 0.60 led a rival elsewhere by 0.01 (a
+    lead of 0.10 is asked for), and every search was refused so; its face edges agreed 82 %. The similarity measures
+    brightness, the edges geometry: where they agree at least ``similarity_excused_by_edges`` the pose is taken on
+    and checked as any other, and the frame measures within the bounds. With the similarity deciding alone it is
+    refused as before."""
+    scene, image = campaign_first_frame(7, 176)
+    args = (image, load_camera(scene.camera), scene.camera_in_fork, CATALOGUE[scene.pallet.type], CONFIG.vision.search)
+    detail = measure_pallet(*args, forks=CONFIG.forks)
+    assert within_bounds(errors(scene, detail.measurement)), errors(scene, detail.measurement)
+    alone = dataclasses.replace(measure_module.MeasureConfig(), similarity_excused_by_edges=None)
+    with pytest.raises(MeasurementError, match="ambiguous pallet"):
+        measure_pallet(*args, forks=CONFIG.forks, config=alone)
+
+
 def test_regression_a_face_matched_with_a_deck_board_nearer_along_the_line_of_sight_is_measured_at_its_depth():
     """Seen steeply from above, the face plus the deck board behind it matched better (0.70) 190 mm nearer along
     the same line of sight than the face alone at its depth (0.62); the pitch searched there found no deck edges

@@ -35,7 +35,9 @@ SCENE_FILES = [
 # Scenes found on the campaign renderer's frames with texture steps sub-sampled at this contrast (fast_render
 # .TEXTURE_CONTRAST); the others on the frames it drew before (point-sampled texture, conftest point_sampled_texture).
 SUB_SAMPLED_AT = {
-    "unloaded-high-flat-look-2": 0.1, "unloaded-low-front-up-look-0-light-0.6": 0.1, "campaign-7-pick-19-exposure-0.6": 0.2,
+    "unloaded-high-flat-look-2": 0.1,
+    "unloaded-low-front-up-look-0-light-0.6": 0.1,
+    "campaign-7-pick-19-exposure-0.6": 0.2,
 }
 
 

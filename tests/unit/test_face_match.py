@@ -146,3 +146,28 @@ def test_an_ambiguous_pose_says_whether_a_rival_leads_or_trails(face, margin, sa
     estimate = PoseEstimate(camera_in_fork.inverse() @ pallet_in_fork, pallet_in_fork, 0.8, margin, 0.3, 100, 0.0, 1.0)
     with pytest.raises(MeasurementError, match=f"ambiguous pallet: {says}"):
         check_pose_estimate(estimate, load_camera(config.vision.camera), face)
+
+
+@pytest.mark.parametrize(("score", "margin"), [(0.8, 0.04), (0.8, -0.02), (0.45, 0.3)])
+def test_the_face_similarity_refusals_are_their_own_type_and_can_be_settled_elsewhere(face, score, margin):
+    """A pose refused for its similarity alone (too low, a rival too close) raises FaceSimilarityError, which the
+    measurement may excuse on the face's edges; with ``similarity`` False the geometric checks still refuse."""
+    import dataclasses
+
+    from agf.camera import load_camera
+    from agf.errors import FaceSimilarityError, MeasurementError
+    from agf.geometry import Transform
+    from agf.vision.pallet_pose import PoseEstimate, check_pose_estimate
+
+    camera = load_camera(load_config(DEFAULT_CONFIG).vision.camera)
+    camera_in_fork = Transform.from_euler(-0.705, 0.0, 1.055, 0.0, 0.0, 0.0)
+    pallet_in_fork = Transform.from_euler(0.3, 0.0, -0.2, 0.0, 0.0, 0.0)
+    estimate = PoseEstimate(camera_in_fork.inverse() @ pallet_in_fork, pallet_in_fork, score, margin, 0.3, 100, 0.0,
+                            1.0)
+    with pytest.raises(FaceSimilarityError):
+        check_pose_estimate(estimate, camera, face)
+    check_pose_estimate(estimate, camera, face, similarity=False)
+    poorly_fitted = dataclasses.replace(estimate, group_inliers=0.4)
+    with pytest.raises(MeasurementError, match="pocket edges fit poorly") as refused:
+        check_pose_estimate(poorly_fitted, camera, face, similarity=False)
+    assert not isinstance(refused.value, FaceSimilarityError)
