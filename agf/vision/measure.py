@@ -302,6 +302,21 @@ class _Frame:
         return face_edge_agreement(self.image, self.camera, self.camera_in_fork, list(poses), self.face, self.forks,
                                    self.config.edges)
 
+    def check_pose(self, pose: PoseEstimate, search: PoseSearchConfig) -> None:
+        """:func:`check_pose_estimate` with ``search``'s thresholds, its similarity's refusal excused where the
+        face's edges agree at least :attr:`MeasureConfig.similarity_excused_by_edges` at ``pose``."""
+        excuse = self.config.similarity_excused_by_edges
+        try:
+            check_pose_estimate(pose, self.camera, self.face, search)
+        except FaceSimilarityError:
+            if excuse is None:
+                raise
+            with self.timed("edges"):
+                [agreed] = self.agreements([pose.pallet_in_fork])
+            if agreed.score < excuse:
+                raise
+            check_pose_estimate(pose, self.camera, self.face, search, similarity=False)
+
     def edges(self, hypothesis: str, pallet_in_fork: Transform, config: PitchConfig | None = None) -> PitchEvidence:
         """The ``"loaded"`` or ``"unloaded"`` hypothesis' edges searched with the pallet at ``pallet_in_fork``."""
         edges_of = unloaded_evidence if hypothesis == "unloaded" else loaded_evidence
@@ -611,27 +626,12 @@ class _Attempt:
                 pose = dataclasses.replace(pose, margin=min(pose.margin, pose.score - (first.score - first.margin)))
                 # The cheap checks first, the pose's and the pitch's sigma; the pitch's search from either side,
                 # which follows, costs ~0.6 s.
-                self.check_pose(pose)
+                frame.check_pose(pose, self.search)
                 check_pitch_sigma(chosen.hypothesis, chosen.sigma, config.max_sigma_pitch)
                 frame.check_pitch_stable(pose, chosen, searched[:-1])
                 return _at_pitch(pose, chosen.pitch, frame.camera_in_fork), chosen, evidence
             pose = self.pose_again(pose, pitch, first)
         raise MeasurementError(f"pose and pitch did not agree after {config.iterations} iterations")
-
-    def check_pose(self, pose: PoseEstimate) -> None:
-        """:func:`check_pose_estimate`, its similarity's refusal excused where the face's edges agree at least
-        :attr:`MeasureConfig.similarity_excused_by_edges` at ``pose``."""
-        frame, excuse = self.frame, self.frame.config.similarity_excused_by_edges
-        try:
-            check_pose_estimate(pose, frame.camera, frame.face, self.search)
-        except FaceSimilarityError:
-            if excuse is None:
-                raise
-            with frame.timed("edges"):
-                [agreed] = frame.agreements([pose.pallet_in_fork])
-            if agreed.score < excuse:
-                raise
-            check_pose_estimate(pose, frame.camera, frame.face, self.search, similarity=False)
 
     def onto_deck_edges(self, pose: PoseEstimate, edges: PitchEvidence) -> PoseEstimate:
         """The pose with y, z, yaw and pitch from the deck ``edges`` (:func:`pose_from_deck_edges`), x from the face:
@@ -698,7 +698,8 @@ def confirm_pallet(
     verification must see again; the pitch stays the one measured before (``expected``'s, its ``sigma_pitch``
     and ``loaded`` hypothesis). The face is searched within the narrow window of a search near a prior
     (:attr:`MeasureConfig.confirm_window`, +-2 deg) by each of the configured similarities in turn, and must lie
-    within that window of ``expected``, pass the pose's checks (:func:`~agf.vision.pallet_pose.check_pose_estimate`)
+    within that window of ``expected``, pass the pose's checks (:func:`~agf.vision.pallet_pose.check_pose_estimate`,
+    its similarity settled by the face's edges as in a measurement: :attr:`MeasureConfig.similarity_excused_by_edges`)
     and the face-edge check (:func:`check_face_edges`), and, unloaded, the frame's own deck edges must not contradict
     the pitch kept (:func:`check_kept_pitch`).
 
@@ -723,7 +724,8 @@ def confirm_pallet(
         search = near_prior(dataclasses.replace(config.pose, similarity=similarity), config.confirm_window)
         try:
             pose = estimate_pallet_pose(frame.gray_f, camera, camera_in_fork, frame.face, volume, prior=expected,
-                                        pitch=expected.euler[1], forks=forks, config=search)
+                                        pitch=expected.euler[1], forks=forks, config=search, check=False)
+            frame.check_pose(pose, search)
             moved = _distance(pose.pallet_in_fork, expected)
             if moved > config.confirm_window:
                 raise MeasurementError(

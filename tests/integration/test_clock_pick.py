@@ -761,6 +761,17 @@ def test_regression_campaign_picks_of_seed_7_a_face_edge_the_light_leaves_blank_
     assert_within_bounds(result.measurements, truths)
 
 
+def test_regression_campaign_pick_32_of_seed_7_a_face_confirmed_on_its_edges_whatever_its_similarity(monkeypatch):
+    """Pick 32 (loaded, 193 mm above the forks): its verifying frames were refused for the pitch, and the
+    confirmation found the face where the plan expects it at a similarity of 0.36, its face edges agreeing 74 %.
+    Refused for the similarity until session 65, it is now settled by the edges as a measurement's face is
+    (MeasureConfig.similarity_excused_by_edges): the pick inserts, every measurement within the bounds."""
+    monkeypatch.setattr(fast_render, "TEXTURE_CONTRAST", TEXTURE_CONTRAST_FOUND_AT)
+    result, _, truths = run_campaign_pick(7, 32, as_written=False)
+    assert result.ok and len(result.confirmations) == 1, result.reason
+    assert_within_bounds(result.measurements, truths)
+
+
 def test_only_runs_one_pick_of_a_campaign_as_the_campaign_draws_it(monkeypatch, tmp_path):
     drawn: list = []
 
