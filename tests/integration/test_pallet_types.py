@@ -52,7 +52,10 @@ def test_picks_of_other_pallet_types_insert_with_every_measurement_within_the_bo
 # loaded, inserted) verified 8 mm low.
 # Session 60: 9, 95 and 116 no longer (test_regression_..._report_the_pitch_measured below).
 # Session 61: 120 no longer (test_regression_pallet_types_campaign_pick_120_of_seed_7_... below).
-OPEN_PALLET_TYPE_WRONG_ACCEPTS = (30, 36, 63, 88, 166, 209, 253, 261, 263)
+# Session 65: 263 no longer: its first frame measures within the bounds (its face's similarity, 0.46 and 0.08 below a
+# rival's, settled by its edges agreeing 79 %), so the pick makes no viewing move; the frame of its second view is
+# still accepted outside the bounds (open: tests/data/scenes/open-wrong-accepts/pallet-types-7-pick-263-two-views-up).
+OPEN_PALLET_TYPE_WRONG_ACCEPTS = (30, 36, 63, 88, 166, 209, 253, 261)
 CAMPAIGN_TYPES = ("epal", "gma-48x40")
 
 
