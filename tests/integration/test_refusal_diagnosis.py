@@ -3,11 +3,18 @@
 from __future__ import annotations
 
 import json
+import math
 
+import numpy as np
 import pytest
 
-from agf.paths import repo_path
+from agf.config import load_config
+from agf.geometry import Transform
+from agf.pallets import load_pallets
+from agf.paths import DEFAULT_CONFIG, repo_path
 from agf.report import CAMPAIGN_FILE
+from agf.vision.edge_agreement import line_of_sight
+from agf.vision.face_model import face_model_from_pallet
 from drivers.sim.campaign import ResultsFile
 from tests.integration.conftest import tool_module
 
@@ -39,6 +46,30 @@ def test_an_inserted_pick_drawn_again_measures_within_the_bounds_at_its_truth(to
     assert record["from_true_start"] == "measured within the bounds", record
     grey = record["edges_at_truth_grey"]
     assert grey["finding"] == "valid" and abs(grey["pitch_error_deg"]) <= 0.1
+    assert record["as_campaign"] == "measured" and record["first_search"] == "at the truth", record
+    assert math.hypot(*record["first_search_mm"].values()) <= 10
+
+
+def test_a_pose_moved_along_and_across_the_line_of_sight_is_placed_so(tool):
+    """sight_offset splits a pose's offset from the truth into its part along the line of sight to the true face's
+    centre and the rest, whatever the poses (seeded), and first_search_text names the three places."""
+    config = load_config(DEFAULT_CONFIG)
+    face = face_model_from_pallet(load_pallets(config.vision.pallets)["jis-t11"])
+    rng = np.random.default_rng(66)
+    for _ in range(20):
+        truth = Transform.from_euler(*rng.uniform([0.1, -0.2, -0.4], [0.5, 0.2, 0.4]), 0.0,
+                                     *np.radians(rng.uniform(-5, 5, 2)))
+        camera = Transform.from_euler(-0.7, 0.0, 1.05, 0.0, *np.radians(rng.uniform(-30, 0, 1)), 0.0)
+        sight = line_of_sight(truth, camera, face)
+        across = np.cross(sight, rng.normal(size=3))
+        across /= np.linalg.norm(across)
+        along_m, across_m = rng.uniform(-0.3, 0.3), rng.uniform(0.0, 0.1)
+        found = Transform(truth.rotation, truth.translation + along_m * sight + across_m * across)
+        assert np.allclose(tool.sight_offset(found, truth, camera, face), (along_m, across_m), atol=1e-12)
+    assert tool.first_search_text(0.006, 0.006) == "at the truth"
+    assert tool.first_search_text(-0.21, 0.03) == "on the line of sight, nearer"
+    assert tool.first_search_text(0.12, 0.01) == "on the line of sight, further"
+    assert tool.first_search_text(0.02, 0.3) == "elsewhere"
 
 
 def test_only_the_refused_picks_are_diagnosed_unless_all_are_asked_for(tool, folder, monkeypatch, capsys):
@@ -48,7 +79,8 @@ def test_only_the_refused_picks_are_diagnosed_unless_all_are_asked_for(tool, fol
         assert base == repo_path("configs/scenes/pick.yaml")  # the scene agf simulate draws random picks from
         diagnosed.append((seed, run, *pallet_types))
         return {"run": run, "pallet_type": "jis-t11", "loaded": False, "z_mm": 0, "with_true_prior": "refused: x",
-                "from_true_start": "refused: y",
+                "from_true_start": "refused: y", "as_campaign": "refused: z", "first_search": "elsewhere",
+                "first_search_mm": {"along": 120.0, "across": 300.0},
                 **{f"edges_at_truth_{n}": {"finding": "edges not found", "ratio": 0.0, "pitch_error_deg": None,
                                            "candidates_deg": []} for n in ("grey", "colour")}}
 
