@@ -5,15 +5,28 @@ pockets are darker or lighter than the wood, the correlation does."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import cv2
 import numpy as np
 import pytest
 
+from agf.camera import CameraModel, load_camera
 from agf.config import load_config
+from agf.errors import FaceSimilarityError, MeasurementError
+from agf.geometry import Transform
 from agf.pallets import load_pallets
 from agf.paths import DEFAULT_CONFIG
 from agf.vision.face_model import FaceModel, face_model_from_pallet
-from agf.vision.pallet_pose import PoseSearchConfig, _Correlation, _RegionMatch, _templates, region_match
+from agf.vision.pallet_pose import (
+    PoseEstimate,
+    PoseSearchConfig,
+    _Correlation,
+    _RegionMatch,
+    _templates,
+    check_pose_estimate,
+    region_match,
+)
 
 PIXEL = 0.01  # m per pixel of the synthetic views
 
@@ -129,41 +142,32 @@ def test_a_pose_search_config_out_of_its_range_is_refused(change, match):
         PoseSearchConfig(**change)
 
 
+def _camera() -> CameraModel:
+    return load_camera(load_config(DEFAULT_CONFIG).vision.camera)
+
+
+def _estimate(score: float, margin: float) -> PoseEstimate:
+    """A pose 0.3 m ahead of the tips and 0.2 m below the forks, in view and fitted well, with this similarity."""
+    camera_in_fork = Transform.from_euler(-0.705, 0.0, 1.055, 0.0, 0.0, 0.0)
+    pallet_in_fork = Transform.from_euler(0.3, 0.0, -0.2, 0.0, 0.0, 0.0)
+    return PoseEstimate(camera_in_fork.inverse() @ pallet_in_fork, pallet_in_fork, score, margin, 0.3, 100, 0.0, 1.0)
+
+
 @pytest.mark.parametrize(
     ("margin", "says"), [(0.04, "the runner-up is within 0.04"), (-0.02, "a rival scores 0.02 above")]
 )
 def test_an_ambiguous_pose_says_whether_a_rival_leads_or_trails(face, margin, says):
     """Regression: a pose refined at the measured pitch scored below a rival of the first search, and the refusal
     read "the runner-up is within -0.02 of the best similarity" (foreign render lowlight-loaded)."""
-    from agf.camera import load_camera
-    from agf.errors import MeasurementError
-    from agf.geometry import Transform
-    from agf.vision.pallet_pose import PoseEstimate, check_pose_estimate
-
-    config = load_config(DEFAULT_CONFIG)
-    camera_in_fork = Transform.from_euler(-0.705, 0.0, 1.055, 0.0, 0.0, 0.0)
-    pallet_in_fork = Transform.from_euler(0.3, 0.0, -0.2, 0.0, 0.0, 0.0)
-    estimate = PoseEstimate(camera_in_fork.inverse() @ pallet_in_fork, pallet_in_fork, 0.8, margin, 0.3, 100, 0.0, 1.0)
     with pytest.raises(MeasurementError, match=f"ambiguous pallet: {says}"):
-        check_pose_estimate(estimate, load_camera(config.vision.camera), face)
+        check_pose_estimate(_estimate(0.8, margin), _camera(), face)
 
 
 @pytest.mark.parametrize(("score", "margin"), [(0.8, 0.04), (0.8, -0.02), (0.45, 0.3)])
 def test_the_face_similarity_refusals_are_their_own_type_and_can_be_settled_elsewhere(face, score, margin):
     """A pose refused for its similarity alone (too low, a rival too close) raises FaceSimilarityError, which the
     measurement may excuse on the face's edges; with ``similarity`` False the geometric checks still refuse."""
-    import dataclasses
-
-    from agf.camera import load_camera
-    from agf.errors import FaceSimilarityError, MeasurementError
-    from agf.geometry import Transform
-    from agf.vision.pallet_pose import PoseEstimate, check_pose_estimate
-
-    camera = load_camera(load_config(DEFAULT_CONFIG).vision.camera)
-    camera_in_fork = Transform.from_euler(-0.705, 0.0, 1.055, 0.0, 0.0, 0.0)
-    pallet_in_fork = Transform.from_euler(0.3, 0.0, -0.2, 0.0, 0.0, 0.0)
-    estimate = PoseEstimate(camera_in_fork.inverse() @ pallet_in_fork, pallet_in_fork, score, margin, 0.3, 100, 0.0,
-                            1.0)
+    camera, estimate = _camera(), _estimate(score, margin)
     with pytest.raises(FaceSimilarityError):
         check_pose_estimate(estimate, camera, face)
     check_pose_estimate(estimate, camera, face, similarity=False)
