@@ -11,6 +11,9 @@ case's name instead of a number.
 Timings differ between machines (the same measurement took 137 ms on one 2-core machine and 343 ms
 on another), so every run also times a fixed OpenCV + numpy workload, ``machine.reference_ms``, and
 reports every timing also as a multiple of it (``x_reference``): figures from two machines compare.
+``machine.code_paths`` names the code paths two libraries chose by the CPU (Intel IPP inside OpenCV, OpenBLAS
+under numpy), which change last bits and so a few picks' outcomes (docs/campaigns.md): accuracy figures from two
+machines compare pick by pick only where those agree.
 """
 
 from __future__ import annotations
@@ -103,6 +106,24 @@ def machine_reference(repeats: int = 7) -> dict[str, Any]:
     return {"reference_ms": statistics.median(samples) * 1e3, "cores": os.cpu_count()}
 
 
+def code_paths() -> dict[str, Any]:
+    """The CPU-chosen code paths that change last bits: ``opencv_ipp`` (IPP's version and path, or "off"),
+    ``openblas`` (the kernels OpenBLAS runs, by library), and the ``OPENCV_IPP`` and ``OPENBLAS_CORETYPE`` the
+    environment named (None where it named none)."""
+    import cv2
+    import numpy as np
+    from threadpoolctl import threadpool_info
+
+    np.linalg.lstsq(np.eye(2), np.ones(2), rcond=None)  # OpenBLAS is loaded
+    return {
+        "opencv": cv2.__version__,
+        "opencv_ipp": cv2.ipp.getIppVersion() if cv2.ipp.useIPP() else "off",
+        "openblas": {i["filepath"].rsplit("/", 1)[-1]: i.get("architecture") for i in threadpool_info()
+                     if i.get("internal_api") == "openblas"},
+        "environment": {name: os.environ.get(name) for name in ("OPENCV_IPP", "OPENBLAS_CORETYPE")},
+    }
+
+
 def in_reference_units(name: str, figures: dict[str, Any], reference_ms: float) -> dict[str, Any]:
     """The timing statistics among ``figures`` as multiples of ``reference_ms``, found by unit suffix:
     the case's own name (``pose.ms``, ``render.frame_s``, ``control.sync_jitter_us``) for its statistics,
@@ -148,5 +169,6 @@ def run_bench(modules: Iterable[str], *, quick: bool, only: str | None = None) -
         relative = in_reference_units(name, figures, machine["reference_ms"])
         report[case.group][name] = figures | ({"x_reference": relative} if relative else {})
     # Timed again at the end: a machine whose speed changed during the run (another load) shows it here.
-    report["machine"] = machine | {"reference_ms_after": machine_reference()["reference_ms"]}
+    after = machine_reference()["reference_ms"]
+    report["machine"] = machine | {"reference_ms_after": after, "code_paths": code_paths()}
     return report

@@ -1,6 +1,8 @@
 """``machine.reference_ms`` and the timings in its units, so that figures from two machines compare."""
 
+import cv2
 import pytest
+from threadpoolctl import threadpool_info
 
 from agf.bench import bench_case, in_reference_units, run_bench
 
@@ -32,3 +34,14 @@ def test_bench_report_has_the_machine_reference_and_each_timing_in_its_units():
     assert machine["reference_ms"] > 0 and machine["reference_ms_after"] > 0
     figures = report["vision_ms"]["zz_reference_test.ms"]
     assert figures["x_reference"]["median"] == pytest.approx(10.0 / machine["reference_ms"])
+
+
+def test_bench_report_names_the_code_paths_the_cpu_chose_for_opencv_s_ipp_and_openblas():
+    """They change last bits, and so a few picks (docs/campaigns.md): a report says which it ran."""
+    report = run_bench([], quick=True, only="zz_no_case")
+    paths = report["machine"]["code_paths"]
+    assert paths["opencv"] == cv2.__version__
+    assert paths["opencv_ipp"] == (cv2.ipp.getIppVersion() if cv2.ipp.useIPP() else "off")
+    kernels = {i["architecture"] for i in threadpool_info() if i.get("internal_api") == "openblas"}
+    assert kernels and set(paths["openblas"].values()) == kernels
+    assert set(paths["environment"]) == {"OPENCV_IPP", "OPENBLAS_CORETYPE"}
