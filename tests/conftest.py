@@ -3,13 +3,13 @@
 
 And on a CPU with AVX-512, OpenBLAS runs its SkylakeX kernels, whatever the environment names. The regression tests
 of campaign picks hold the frames and measurements of the machines they were found on, to the last bit, and numpy's
-least squares and eigenvectors round by OpenBLAS's kernel: the machine of session 68 (AMD EPYC, AVX-512) set
-OPENBLAS_CORETYPE=Haswell in its environment, and four of those tests measured otherwise there; with SkylakeX kernels,
-which OpenBLAS picks by itself on such a CPU, as on the machines of sessions 52-67. OpenBLAS reads the variable when
-numpy loads it, so this comes before any import of numpy (pytest and its plugins import none). Intel IPP, inside
-OpenCV, picks its path by the CPU too: its AVX-512 path is the one those machines took; a machine without AVX-512
-(session 51's) draws campaign frames otherwise (the two hashes of each random look in tests/integration/test_render.py),
-and some of those tests may fail there.
+linear algebra (least squares) rounds by OpenBLAS's kernel: the machine of session 68 (AMD EPYC, AVX-512) set
+OPENBLAS_CORETYPE=Haswell in its environment, and four of those tests measured otherwise there; with the SkylakeX
+kernels, which OpenBLAS picks by itself on such a CPU, every test passes as where it was written. OpenBLAS reads
+the variable when numpy loads it, so this comes before any import of numpy (pytest and its plugins import none).
+Intel IPP, inside OpenCV, picks its path by the CPU too: its AVX-512 path is the one those machines took; a machine
+without AVX-512 (session 51's) draws campaign frames otherwise (the two hashes of each random look in
+tests/integration/test_render.py), and some of those tests may fail there.
 """
 
 from __future__ import annotations
