@@ -26,7 +26,8 @@ def cpu_flags() -> set[str]:
     return {flag for line in lines if line.startswith("flags") for flag in line.split(":", 1)[1].split()}
 
 
-if set(SKYLAKEX_FLAGS) <= cpu_flags():
+SKYLAKEX_CPU = set(SKYLAKEX_FLAGS) <= cpu_flags()
+if SKYLAKEX_CPU:
     os.environ["OPENBLAS_CORETYPE"] = "SkylakeX"
 
 from agf.heap import keep_freed_memory  # noqa: E402 (after the kernel is chosen: it imports numpy)

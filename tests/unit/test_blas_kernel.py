@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
-from threadpoolctl import threadpool_info
 
-from tests.conftest import SKYLAKEX_FLAGS, cpu_flags
+from agf.bench import code_paths
+from tests.conftest import SKYLAKEX_CPU
 
 
-@pytest.mark.skipif(not set(SKYLAKEX_FLAGS) <= cpu_flags(), reason="no AVX-512: OpenBLAS picks its kernel")
+@pytest.mark.skipif(not SKYLAKEX_CPU, reason="no AVX-512: OpenBLAS picks its kernel")
 def test_regression_openblas_named_haswell_by_the_environment_runs_skylakex_kernels_on_an_avx_512_cpu():
-    np.linalg.lstsq(np.eye(3), np.ones(3), rcond=None)  # OpenBLAS is loaded
-    kernels = [i["architecture"] for i in threadpool_info() if i.get("internal_api") == "openblas"]
-    assert kernels and set(kernels) == {"SkylakeX"}, kernels
+    kernels = code_paths()["openblas"]
+    assert kernels and set(kernels.values()) == {"SkylakeX"}, kernels
