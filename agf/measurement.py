@@ -55,3 +55,8 @@ def pose_json(T: Transform) -> dict[str, float]:
     """``{x_mm, y_mm, z_mm, pitch_deg, yaw_deg}`` of DESIGN.md's ``agf measure`` contract."""
     d = T.to_dict()
     return {key: d[key] for key in ("x_mm", "y_mm", "z_mm", "pitch_deg", "yaw_deg")}
+
+
+def uncertainty_json(m: PalletMeasurement) -> dict[str, float]:
+    """``{z_mm, pitch_deg}``: the measurement's uncertainty (1 sigma) in the units of DESIGN.md's JSON."""
+    return {"z_mm": m.sigma_z * 1e3, "pitch_deg": float(np.degrees(m.sigma_pitch))}

@@ -46,7 +46,7 @@ from agf.config import Config, ForkGeometry, SearchVolume, load_calibration
 from agf.errors import ConfigError, InputError
 from agf.frames import Frame
 from agf.geometry import Transform
-from agf.measurement import PalletMeasurement
+from agf.measurement import PalletMeasurement, uncertainty_json
 
 # A chunk is closed at this size or at the next flush, whichever comes first; a frame (0.3-0.6 MB of
 # JPEG, about 2 MB of PNG) fills one on its own.
@@ -180,7 +180,7 @@ def measurement_message(stage: str, frame: int, measurement: PalletMeasurement |
             pallet_in_camera=measurement.pallet_in_camera.to_dict(),
             loaded=measurement.loaded,
             scores={k: float(v) for k, v in measurement.scores.items()},
-            uncertainty={"z_mm": measurement.sigma_z * 1e3, "pitch_deg": float(np.degrees(measurement.sigma_pitch))},
+            uncertainty=uncertainty_json(measurement),
             timing_ms={k: float(v) for k, v in measurement.timing_ms.items()},
         )
     return message

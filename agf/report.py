@@ -43,6 +43,7 @@ OPTIONAL = {
     "cpu_s": (int, float),
     "durations_s": dict,
     "measured": list,
+    "uncertainty": list,
     "truth": list,
     "scene": dict,
     "log": (str, type(None)),
@@ -52,6 +53,10 @@ OPTIONAL = {
     "confirmations": int,
     "exposure_changes": int,
 }
+# The pose keys a measurement states its uncertainty (1 sigma) for, and how many of its sigmas an error may reach
+# before the report counts it as erring beyond what the measurement stated.
+STATED = ("z_mm", "pitch_deg")
+SIGMAS = 3.0
 COLOURS = {"inserted": "tab:green", "refused": "tab:orange", "faulted": "tab:purple", "collided": "tab:red"}
 # The pallet's start pose keys the outcomes are counted by (band width, axis label): 100 mm of height is about
 # what a viewing move changes; a degree of pitch what one step of the first searches covers.
@@ -83,8 +88,13 @@ def validate_result(record: Any, where: str) -> dict[str, Any]:
         raise InputError(f"{where}: outcome: expected one of {', '.join(OUTCOMES)}, got {record['outcome']!r}")
     if record["run"] < 0:
         raise InputError(f"{where}: run: expected a run index >= 0, got {record['run']}")
-    if len(record.get("truth", [])) > len(record.get("measured", [])):
-        raise InputError(f"{where}: truth: more entries than measured")
+    for key in ("truth", "uncertainty"):
+        if len(record.get(key, [])) > len(record.get("measured", [])):
+            raise InputError(f"{where}: {key}: more entries than measured")
+    for sigma in record.get("uncertainty", []):
+        if not (isinstance(sigma, dict) and all(isinstance(sigma.get(k), (int, float)) for k in STATED)):
+            raise InputError(f"{where}: uncertainty: expected objects of {' and '.join(STATED)} (1 sigma), "
+                             f"got {sigma!r}")
     return record
 
 
@@ -222,13 +232,26 @@ def outcomes_by_band(results: Iterable[Mapping[str, Any]], key: str, width: floa
 
 
 def measurement_errors(results: Iterable[Mapping[str, Any]]) -> list[dict[str, Any]]:
-    """Every measurement with its truth: ``{"run", "index", "error": {key: measured - true}, "scene"}``."""
+    """Every measurement with its truth: ``{"run", "index", "error": {key: measured - true}, "sigma", "scene"}``,
+    ``sigma`` the uncertainty it stated (:data:`STATED`, 1 sigma) or None where the result has none."""
     rows = []
     for r in results:
+        stated = r.get("uncertainty", [])
         for i, (measured, true) in enumerate(zip(r.get("measured", []), r.get("truth", []), strict=False)):
             error = {k: measured[k] - true[k] for k in POSE_KEYS}
-            rows.append({"run": r["run"], "index": i, "error": error, "scene": r.get("scene")})
+            sigma = stated[i] if i < len(stated) else None
+            rows.append({"run": r["run"], "index": i, "error": error, "sigma": sigma, "scene": r.get("scene")})
     return rows
+
+
+def beyond_stated(errors: Iterable[Mapping[str, Any]], sigmas: float = SIGMAS) -> dict[str, list[int]]:
+    """Per key of :data:`STATED`, the runs of the measurements (among ``errors``, :func:`measurement_errors`, that
+    state their uncertainty) whose error exceeds ``sigmas`` times the sigma they stated: a measurement surer of
+    itself than it had reason to be."""
+    if sigmas <= 0:
+        raise ValueError(f"sigmas must be positive, got {sigmas}")
+    return {key: [e["run"] for e in errors if e["sigma"] is not None
+                  and abs(e["error"][key]) > sigmas * e["sigma"][key]] for key in STATED}
 
 
 def _save(figure: Figure, path: Path) -> str:
@@ -268,6 +291,31 @@ def _error_plot(errors: list[dict[str, Any]], path: Path) -> str:
                 ax.set_ylabel(ylabel)
     axes[0, 0].legend(loc="best", fontsize="small")
     figure.suptitle("measurement error (measured - true pallet_in_fork) against the scene")
+    return _save(figure, path)
+
+
+def _uncertainty_plot(errors: list[dict[str, Any]], path: Path) -> str:
+    """Each measurement's absolute height and pitch error against the sigma it stated, with the line of
+    :data:`SIGMAS` sigmas and the accuracy bound; measurements outside the bounds in red."""
+    figure = Figure(figsize=(11, 4.5), layout="constrained")
+    axes = figure.subplots(1, len(STATED), squeeze=False)[0]
+    stated = [e for e in errors if e["sigma"] is not None]
+    units = {"z_mm": "height [mm]", "pitch_deg": "pitch [deg]"}
+    for ax, key in zip(axes, STATED, strict=True):
+        for inside, colour, label in ((True, "tab:blue", "within the bounds"), (False, "tab:red", "outside")):
+            chosen = [e for e in stated if within_bounds(e["error"]) == inside]
+            ax.scatter([e["sigma"][key] for e in chosen], [abs(e["error"][key]) for e in chosen], s=14, alpha=0.7,
+                       color=colour, label=label)
+        top = max([e["sigma"][key] for e in stated], default=1.0)
+        ax.plot([0.0, top], [0.0, SIGMAS * top], "k--", linewidth=1, label=f"{SIGMAS:g} stated sigmas")
+        ax.axhline(BOUNDS[key], color="tab:red", linewidth=0.8, label="accuracy bound")
+        ax.set_xlabel(f"stated uncertainty, 1 sigma, {units[key]}")
+        ax.set_ylabel(f"absolute error, {units[key]}")
+        ax.grid(True, alpha=0.4)
+    axes[0].legend(loc="best", fontsize="small")
+    if not stated:
+        figure.text(0.5, 0.5, "no measurement states its uncertainty", ha="center")
+    figure.suptitle("measurement error against the uncertainty each measurement stated")
     return _save(figure, path)
 
 
@@ -470,9 +518,23 @@ def _markdown(folder: Path, meta: Mapping[str, Any], results: list[dict[str, Any
         runs = ", ".join(str(run) for run in sorted({e["run"] for e in wrong}))
         lines += [f"Accepted measurements outside the accuracy bounds ({bounds}): **{len(wrong)}**"
                   + (f", in runs {runs}." if wrong else "."), ""]
-    lines += [f"![measurement error]({plots['error']})", "", "## Clearance", "", f"![clearance]({plots['clearance']})"]
+        lines += _stated_lines(errors)
+    lines += [f"![measurement error]({plots['error']})", "", f"![stated uncertainty]({plots['uncertainty']})", "",
+              "## Clearance", "", f"![clearance]({plots['clearance']})"]
     lines += ["", "## Cycle times", "", f"![cycle times]({plots['cycle']})", ""]
     return "\n".join(lines)
+
+
+def _stated_lines(errors: list[dict[str, Any]]) -> list[str]:
+    """The report's line on how the measurements' errors compare with the uncertainty they stated."""
+    stated = sum(e["sigma"] is not None for e in errors)
+    if not stated:
+        return ["No measurement states its uncertainty (a campaign from before results carried it).", ""]
+    beyond = beyond_stated(errors)
+    counts = " and ".join(f"{len(beyond[key])} in {key}" + (f" (runs {', '.join(map(str, sorted(set(beyond[key]))))})"
+                                                          if beyond[key] else "") for key in STATED)
+    return [f"Of the {stated} measurements that state their uncertainty (1 sigma), erred by more than {SIGMAS:g} of "
+            f"their sigmas: {counts}. A measurement that errs so was surer of itself than it had reason to be.", ""]
 
 
 def write_report(folder: Path) -> dict[str, Any]:
@@ -489,6 +551,7 @@ def write_report(folder: Path) -> dict[str, Any]:
         raise InputError(f"{meta_path}: not JSON ({exc.msg})") from exc
     plots = {
         "error": _error_plot(measurement_errors(results), folder / "measurement_error.png"),
+        "uncertainty": _uncertainty_plot(measurement_errors(results), folder / "stated_uncertainty.png"),
         "clearance": _clearance_plot(results, folder / "clearance.png"),
         "cycle": _cycle_plot(results, folder / "cycle_times.png"),
         "outcomes": _outcome_plot(results, folder / "outcomes_by_scene.png"),

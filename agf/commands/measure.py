@@ -15,7 +15,7 @@ from agf.config import Config, load_calibration
 from agf.errors import InputError, MeasurementError
 from agf.geometry import Transform, transform_from_dict
 from agf.insertion import InsertionConfig, tolerance_margins
-from agf.measurement import PalletMeasurement, pose_json
+from agf.measurement import PalletMeasurement, pose_json, uncertainty_json
 from agf.pallets import PalletType, load_pallets, pallet_type
 from agf.vision.measure import measure_pallet
 from agf.viz import measurement_overlay, refusal_overlay
@@ -56,7 +56,7 @@ def measure_command(
         "pallet_in_fork": pose_json(m.pallet_in_fork),
         "pallet_in_camera": pose_json(m.pallet_in_camera),
         "scores": {"loaded": m.scores["loaded"], "unloaded": m.scores["unloaded"]},
-        "uncertainty": {"z_mm": m.sigma_z * 1e3, "pitch_deg": math.degrees(m.sigma_pitch)},
+        "uncertainty": uncertainty_json(m),
         "insertion": _insertion_check(m, pallet, config),
         "timing_ms": dict(m.timing_ms),
     }

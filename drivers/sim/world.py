@@ -33,7 +33,7 @@ from agf.errors import ConfigError, DriveFault, MeasurementError
 from agf.frames import Frame, FrameSource, JpegImage
 from agf.geometry import Transform
 from agf.kinematics import MastGeometry, fork_in_truck_from_axes
-from agf.measurement import PalletMeasurement
+from agf.measurement import PalletMeasurement, uncertainty_json
 from agf.motion import plan_move
 from agf.pallets import load_pallets
 from agf.paths import repo_path
@@ -331,6 +331,7 @@ def pick_summary(result: PickResult, world: SimulatedWorld) -> dict[str, Any]:
         "exposure_changes": len(result.exposures),
         "durations_s": result.durations,
         "measured": [m.pallet_in_fork.to_dict() for m in result.measurements],
+        "uncertainty": [uncertainty_json(m) for m in result.measurements],
         "truth": [t.to_dict() for t in world.measured_truths[: len(result.measurements)]],
         "scene": scene_summary(world.scene),
         "pallet_in_fork_at_end": final,

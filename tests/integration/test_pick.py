@@ -50,6 +50,11 @@ def test_a_pick_inserts_without_collision():
     end = summary["pallet_in_fork_at_end"]
     assert end["x_mm"] == pytest.approx(-600, abs=10)  # inserted to the configured depth
     assert abs(end["z_mm"]) < 5 and abs(end["pitch_deg"]) < 0.1
+    # each measurement's stated uncertainty, in the units and order of its pose, for the campaign report
+    assert summary["uncertainty"] == [
+        {"z_mm": pytest.approx(m.sigma_z * 1e3), "pitch_deg": pytest.approx(math.degrees(m.sigma_pitch))}
+        for m in result.measurements
+    ] and len(summary["uncertainty"]) == len(summary["measured"]) >= 2
 
 
 def assert_stopped(result, before, after, states, reason):

@@ -43,6 +43,8 @@ def light_pick(seed: int, index: int, interrupt_at: int | None = None, pallet_ty
         "cycle_s": float(20 + rng.uniform(0, 5)),
         "durations_s": {"acquiring": 0.5, "measuring": 1.0, "aligning": float(5 + rng.uniform(0, 2))},
         "measured": [measured] if outcome != "refused" else [],
+        # stated at half the drawn noise, so that some errors exceed three of them
+        "uncertainty": [{"z_mm": 1.0, "pitch_deg": 0.05}] if outcome != "refused" else [],
         "truth": [truth] if outcome != "refused" else [],
         "scene": scene_summary(scene),
         "viewing_moves": len(views),

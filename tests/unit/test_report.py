@@ -15,6 +15,7 @@ from agf.cli import EXIT_OK, EXIT_USAGE, main
 from agf.errors import InputError
 from agf.report import (
     RESULTS_FILE,
+    beyond_stated,
     first_refusals,
     measurement_errors,
     outcomes_by_band,
@@ -160,7 +161,7 @@ def test_failure_rows_link_their_recorder_file_when_there_is_one(folder):
 def test_the_plots_are_written_and_linked(folder):
     result = write_report(folder)
     markdown = (folder / "report.md").read_text()
-    assert len(result["plots"]) == 4
+    assert len(result["plots"]) == 5
     for path in result["plots"]:
         image = cv2.imread(path)
         assert image is not None and image.shape[0] > 300 and image.std() > 10
@@ -183,6 +184,10 @@ def test_agf_report_on_the_command_line(folder, tmp_path, capsys):
         ('{"run": 0, "ok": "yes", "outcome": "inserted", "collision": false}', "ok: expected bool"),
         ('{"run": 0, "ok": false, "outcome": "lost", "collision": false}', "outcome: expected one of"),
         ('{"run": 0, "ok": true, "outcome": "inserted", "collision": false, "measured": {}}', "measured: expected"),
+        ('{"run": 0, "ok": true, "outcome": "inserted", "collision": false, "measured": [], '
+         '"uncertainty": [{"z_mm": 1, "pitch_deg": 0.03}]}', "uncertainty: more entries than measured"),
+        ('{"run": 0, "ok": true, "outcome": "inserted", "collision": false, "measured": [{}], '
+         '"uncertainty": [{"z_mm": 1}]}', "uncertainty: expected objects of z_mm and pitch_deg"),
         ("not json", "not JSON"),
     ],
 )
@@ -245,3 +250,30 @@ def test_the_report_tables_the_inserted_share_by_pallet_height_and_load(folder):
                                         [r for r in mine if r["scene"]["loaded"]], mine), strict=True):
             inserted = sum(r["outcome"] == "inserted" for r in chosen)
             assert cell.split(" (")[0] == f"{inserted} / {len(chosen)}"
+
+
+def test_the_report_counts_measurements_that_erred_beyond_three_of_their_stated_sigmas(folder):
+    write_report(folder)
+    records = read_results(folder)
+    pairs = [(m, t, u) for r in records for m, t, u in zip(r["measured"], r["truth"], r["uncertainty"], strict=True)]
+    beyond = {key: sum(abs(m[key] - t[key]) > 3 * u[key] for m, t, u in pairs) for key in ("z_mm", "pitch_deg")}
+    assert 0 < beyond["pitch_deg"] < len(pairs), "the light pick states half its noise: some errors exceed 3 sigma"
+    counted = beyond_stated(measurement_errors(records))
+    assert {key: len(runs) for key, runs in counted.items()} == beyond
+    markdown = (folder / "report.md").read_text()
+    assert (f"Of the {len(pairs)} measurements that state their uncertainty (1 sigma), erred by more than 3 of their "
+            f"sigmas: {beyond['z_mm']} in z_mm") in markdown
+    assert f"and {beyond['pitch_deg']} in pitch_deg (runs " in markdown
+    with pytest.raises(ValueError, match="sigmas must be positive"):
+        beyond_stated([], 0.0)
+
+
+def test_a_campaign_whose_results_state_no_uncertainty_is_reported_as_such(folder, tmp_path):
+    """Campaigns from before session 69 carry no ``uncertainty``: the report says so instead of counting nothing."""
+    for record in read_results(folder):
+        record.pop("uncertainty")
+        ResultsFile(tmp_path).append(record)
+    write_report(tmp_path)
+    markdown = (tmp_path / "report.md").read_text()
+    assert "No measurement states its uncertainty" in markdown and "erred by more than" not in markdown
+    assert beyond_stated(measurement_errors(read_results(tmp_path))) == {"z_mm": [], "pitch_deg": []}
