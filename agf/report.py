@@ -151,6 +151,7 @@ def campaign_figures(results: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
         "confirmations": sum(r.get("confirmations", 0) for r in results),
         "exposure_changes": sum(r.get("exposure_changes", 0) for r in results),
         "measurements_outside_bounds": sum(not within_bounds(e["error"]) for e in measurement_errors(results)),
+        "measurements_beyond_stated": {k: len(runs) for k, runs in beyond_stated(measurement_errors(results)).items()},
         "min_clearance_mm": min(clearances) if clearances else None,
         "median_cycle_s": statistics.median(cycles) if cycles else None,
         "cpu_s": sum(r["cpu_s"] for r in timed) if timed else None,
