@@ -251,6 +251,7 @@ def beyond_stated(errors: Iterable[Mapping[str, Any]], sigmas: float = SIGMAS) -
     itself than it had reason to be."""
     if sigmas <= 0:
         raise ValueError(f"sigmas must be positive, got {sigmas}")
+    errors = list(errors)  # read once per key
     return {key: [e["run"] for e in errors if e["sigma"] is not None
                   and abs(e["error"][key]) > sigmas * e["sigma"][key]] for key in STATED}
 
@@ -532,10 +533,14 @@ def _stated_lines(errors: list[dict[str, Any]]) -> list[str]:
     if not stated:
         return ["No measurement states its uncertainty (a campaign from before results carried it).", ""]
     beyond = beyond_stated(errors)
-    counts = " and ".join(f"{len(beyond[key])} in {key}" + (f" (runs {', '.join(map(str, sorted(set(beyond[key]))))})"
-                                                          if beyond[key] else "") for key in STATED)
-    return [f"Of the {stated} measurements that state their uncertainty (1 sigma), erred by more than {SIGMAS:g} of "
-            f"their sigmas: {counts}. A measurement that errs so was surer of itself than it had reason to be.", ""]
+
+    def count(key: str) -> str:
+        runs = sorted(set(beyond[key]))
+        return f"{len(beyond[key])} in {key}" + (f" (runs {', '.join(map(str, runs))})" if runs else "")
+
+    return [f"Of the {stated} measurements that state their uncertainty (1 sigma), {' and '.join(map(count, STATED))} "
+            f"erred by more than {SIGMAS:g} of their sigmas: such a measurement was surer of itself than it had reason "
+            "to be.", ""]
 
 
 def write_report(folder: Path) -> dict[str, Any]:
