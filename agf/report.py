@@ -128,6 +128,7 @@ def campaign_figures(results: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
     cycles = [r["cycle_s"] for r in results if r["ok"] and "cycle_s" in r]
     clearances = [r["min_clearance_mm"] for r in results if r.get("min_clearance_mm") is not None]
     timed = [r for r in results if "cpu_s" in r]  # campaigns since session 59
+    errors = measurement_errors(results)
     failures = [
         {
             "run": r["run"],
@@ -150,8 +151,8 @@ def campaign_figures(results: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
         "withdrawals": sum(r.get("withdrawals", 0) for r in results),
         "confirmations": sum(r.get("confirmations", 0) for r in results),
         "exposure_changes": sum(r.get("exposure_changes", 0) for r in results),
-        "measurements_outside_bounds": sum(not within_bounds(e["error"]) for e in measurement_errors(results)),
-        "measurements_beyond_stated": {k: len(runs) for k, runs in beyond_stated(measurement_errors(results)).items()},
+        "measurements_outside_bounds": sum(not within_bounds(e["error"]) for e in errors),
+        "measurements_beyond_stated": {k: len(runs) for k, runs in beyond_stated(errors).items()},
         "min_clearance_mm": min(clearances) if clearances else None,
         "median_cycle_s": statistics.median(cycles) if cycles else None,
         "cpu_s": sum(r["cpu_s"] for r in timed) if timed else None,
@@ -555,9 +556,10 @@ def write_report(folder: Path) -> dict[str, Any]:
         meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {}
     except json.JSONDecodeError as exc:
         raise InputError(f"{meta_path}: not JSON ({exc.msg})") from exc
+    errors = measurement_errors(results)
     plots = {
-        "error": _error_plot(measurement_errors(results), folder / "measurement_error.png"),
-        "uncertainty": _uncertainty_plot(measurement_errors(results), folder / "stated_uncertainty.png"),
+        "error": _error_plot(errors, folder / "measurement_error.png"),
+        "uncertainty": _uncertainty_plot(errors, folder / "stated_uncertainty.png"),
         "clearance": _clearance_plot(results, folder / "clearance.png"),
         "cycle": _cycle_plot(results, folder / "cycle_times.png"),
         "outcomes": _outcome_plot(results, folder / "outcomes_by_scene.png"),
